@@ -1,0 +1,36 @@
+# make install: create .venv and install cv2x_marl with every extra, under constraints.txt (idempotent)
+# make run:     install, then the main job
+# make test:    install, then lint (ruff), types (mypy) and the test suite (pytest)
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install run test lint bench docs clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -c constraints.txt -e ".[train,dev]"
+	touch $(STAMP)
+
+run: install
+	$(BIN)/cv2x-marl simulate --preset paper --seed 0 --out results/simulate-paper
+
+lint: install
+	$(BIN)/ruff check cv2x_marl tests benchmarks
+	$(BIN)/ruff format --check cv2x_marl tests benchmarks
+	$(BIN)/mypy cv2x_marl
+
+test: lint
+	$(BIN)/python -m pytest
+
+bench: install
+	$(BIN)/python benchmarks/bench_sim.py
+
+docs: install
+	$(BIN)/cv2x-marl config --markdown > docs/config.md
+
+clean:
+	rm -rf $(VENV) results .pytest_cache .mypy_cache .ruff_cache

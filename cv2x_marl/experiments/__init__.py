@@ -1,0 +1,1 @@
+"""The paper's pipelines, driven by the CLI."""

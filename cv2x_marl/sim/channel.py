@@ -1,0 +1,140 @@
+"""Large-scale and small-scale propagation.
+
+* Power law, eq. 3 of the paper: ``rho = K (d0 / d)^omega``, so the loss in dB is
+  ``PL = -K_dB + 10 omega log10(d / d0)``; K defaults to the free-space gain at ``d0``.
+* WINNER+ B1 as specified for V2V in 3GPP TR 36.885 Table A.1.4-1 (fc in GHz, d in m):
+
+  - LOS, ``d < d_BP``:  ``PL = 22.7 log10 d + 41.0 + 20 log10(fc / 5)``
+  - LOS, ``d >= d_BP``: ``PL = 40 log10 d + 9.45 - 17.3 log10 h'_tx - 17.3 log10 h'_rx + 2.7 log10(fc / 5)``
+  - ``d_BP = 4 h'_tx h'_rx fc / c`` with the effective antenna height ``h'`` an explicit parameter;
+  - NLOS (Manhattan grid): ``PL = min(PL_n(d1, d2), PL_n(d2, d1))``,
+    ``PL_n(dk, dl) = PL_LOS(dk) + 20 - 12.5 n + 10 n log10 dl + 3 log10(fc / 5)``,
+    ``n = max(2.8 - 0.0024 dk, 1.84)``, with d1 = |dx| and d2 = |dy| the street distances;
+  - floored by free space ``PL_fs = 20 log10 d + 46.4 + 20 log10(fc / 5)``.
+
+* Shadowing (TR 36.885 A.1.4): log-normal, 3 dB LOS / 4 dB NLOS, symmetric per vehicle pair and
+  correlated with distance travelled, ``S' = exp(-D/d_c) S + sqrt(1 - exp(-2D/d_c)) N(0, 1)``.
+* Fast fading: Rayleigh, an independent ``|h|^2 ~ Exp(1)`` per transmission and link. Packets of a
+  link are an RRI (>= 20 ms) apart while the coherence time ``~0.423 / f_D`` is a few ms at
+  vehicular Doppler (eq. 4), so independence between transmissions is the right model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cv2x_marl.units import SPEED_OF_LIGHT_MPS
+
+FloatArray = NDArray[np.float64]
+
+
+def doppler_hz(carrier_hz: float, relative_speed_mps: ArrayLike) -> FloatArray:
+    """Eq. 4 as written in the paper: ``D = 2 c v / 3e8`` (c: carrier frequency, v: relative speed)."""
+    return 2.0 * carrier_hz * np.asarray(relative_speed_mps, dtype=np.float64) / 3e8
+
+
+def free_space_db(distance_m: ArrayLike, carrier_hz: float) -> FloatArray:
+    """Free-space loss as written in TR 36.885: ``20 log10 d + 46.4 + 20 log10(fc/5 GHz)``."""
+    d = np.asarray(distance_m, dtype=np.float64)
+    return 20.0 * np.log10(d) + 46.4 + 20.0 * np.log10(carrier_hz / 5e9)
+
+
+def power_law_db(
+    distance_m: ArrayLike, k_db: float | None, d0_m: float, exponent: float, carrier_hz: float
+) -> FloatArray:
+    """Eq. 3 in dB: ``PL = -K_dB + 10 omega log10(d / d0)``.
+
+    Args:
+        distance_m: distances, any shape, metres.
+        k_db: gain K at d0 in dB; None gives the free-space value ``20 log10(lambda / (4 pi d0))``.
+        d0_m: reference distance, metres.
+        exponent: omega.
+        carrier_hz: carrier frequency (for the free-space K).
+    """
+    if k_db is None:
+        wavelength_m = SPEED_OF_LIGHT_MPS / carrier_hz
+        k_db = 20.0 * np.log10(wavelength_m / (4.0 * np.pi * d0_m))
+    d = np.asarray(distance_m, dtype=np.float64)
+    return -k_db + 10.0 * exponent * np.log10(d / d0_m)
+
+
+def winner_b1_los_db(distance_m: ArrayLike, carrier_hz: float, effective_height_m: float) -> FloatArray:
+    """WINNER+ B1 LOS path loss (TR 36.885 Table A.1.4-1) with the breakpoint, in dB (no floor)."""
+    d = np.asarray(distance_m, dtype=np.float64)
+    fc_ghz = carrier_hz / 1e9
+    h = effective_height_m
+    d_bp = 4.0 * h * h * carrier_hz / SPEED_OF_LIGHT_MPS
+    near = 22.7 * np.log10(d) + 41.0 + 20.0 * np.log10(fc_ghz / 5.0)
+    far = 40.0 * np.log10(d) + 9.45 - 2.0 * 17.3 * np.log10(h) + 2.7 * np.log10(fc_ghz / 5.0)
+    return np.where(d < d_bp, near, far)
+
+
+def winner_b1_nlos_db(d1_m: ArrayLike, d2_m: ArrayLike, carrier_hz: float, effective_height_m: float) -> FloatArray:
+    """Manhattan NLOS: minimum over the two street orderings (TR 36.885 Table A.1.4-1), in dB."""
+    d1 = np.asarray(d1_m, dtype=np.float64)
+    d2 = np.asarray(d2_m, dtype=np.float64)
+    fc_term = 3.0 * np.log10(carrier_hz / 5e9)
+
+    def one(dk: FloatArray, dl: FloatArray) -> FloatArray:
+        n = np.maximum(2.8 - 0.0024 * dk, 1.84)
+        return (
+            winner_b1_los_db(dk, carrier_hz, effective_height_m) + 20.0 - 12.5 * n + 10.0 * n * np.log10(dl) + fc_term
+        )
+
+    return np.minimum(one(d1, d2), one(d2, d1))
+
+
+def winner_b1_db(
+    dx_m: ArrayLike,
+    dy_m: ArrayLike,
+    los: ArrayLike,
+    carrier_hz: float,
+    effective_height_m: float,
+    min_distance_m: float = 3.0,
+) -> FloatArray:
+    """WINNER+ B1 V2V path loss for displacement ``(dx, dy)``, LOS or Manhattan NLOS, with the free-space floor.
+
+    Distances (and the street distances of NLOS) below ``min_distance_m`` are clipped to it.
+    """
+    dx = np.maximum(np.abs(np.asarray(dx_m, dtype=np.float64)), min_distance_m)
+    dy = np.maximum(np.abs(np.asarray(dy_m, dtype=np.float64)), min_distance_m)
+    d = np.maximum(np.hypot(np.asarray(dx_m, dtype=np.float64), np.asarray(dy_m, dtype=np.float64)), min_distance_m)
+    los = np.asarray(los, dtype=bool)
+    pl = winner_b1_los_db(d, carrier_hz, effective_height_m)
+    if not np.all(los):
+        pl = np.where(los, pl, winner_b1_nlos_db(dx, dy, carrier_hz, effective_height_m))
+    return np.maximum(pl, free_space_db(d, carrier_hz))
+
+
+class Shadowing:
+    """Symmetric, distance-correlated log-normal shadowing for every vehicle pair.
+
+    A unit-variance Gaussian ``Z[a, b] = Z[b, a]`` per pair evolves as an AR(1) process in the
+    distance ``D`` the pair's two ends travelled since it was last read (``D = odo_a + odo_b -
+    odo_at_last_read``), which makes a lazy update exact: exponential correlation composes.
+    The dB value is ``sigma(LOS/NLOS) * Z``, so a LOS change rescales it without a jump in Z.
+    """
+
+    def __init__(self, n: int, decorrelation_m: float, rng: np.random.Generator) -> None:
+        w = rng.standard_normal((n, n))
+        self._z = np.triu(w, 1) + np.triu(w, 1).T  # symmetric, unit variance off the diagonal
+        self._last_odo = np.zeros((n, n))
+        self._dc = decorrelation_m
+        self._rng = rng
+
+    def sample(self, a: NDArray[np.int64], b: NDArray[np.int64], odometer_m: FloatArray) -> FloatArray:
+        """Unit-variance shadowing of unordered pairs ``(a, b)``, updated to the current odometers."""
+        odo = odometer_m[a] + odometer_m[b]
+        rho = np.exp(-(odo - self._last_odo[a, b]) / self._dc)
+        z = rho * self._z[a, b] + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(a.shape[0])
+        self._z[a, b] = z
+        self._z[b, a] = z
+        self._last_odo[a, b] = odo
+        self._last_odo[b, a] = odo
+        return z
+
+
+def rayleigh_power_gain(rng: np.random.Generator, size: int) -> FloatArray:
+    """``|h|^2`` of Rayleigh fading: exponential with mean 1."""
+    return rng.standard_exponential(size)

@@ -1,0 +1,501 @@
+"""The stage-1 network-level simulator of C-V2X sidelink Mode 4 (paper Sec. 3 and 6.1).
+
+Time advances in reservation periods of ``traffic.rri_ms`` subframes. Within a period every
+vehicle transmits once, on its reserved resource ``(slot, subchannel)``; positions are those at
+the start of the period and the large-scale channel is computed once per period. So a period (or
+the part of it a ``run`` covers) is one batch of array operations over vehicle pairs:
+
+    geometry -> path loss + shadowing (+ fading) -> received powers [pairs]
+    -> per (receiver, resource) power sums (bincount) -> SINR of eq. 8 for every link
+    -> success probability + sampled outcome (+ loss cause, NSV, l) -> metrics, links table
+    -> sensing (S-RSSI, SCI RSRP); at the end of the period: SPS counters and reselection,
+       then mobility.
+
+Interference at receiver b on link a -> b is the sum over the other vehicles transmitting on
+a's subframe and subchannel (optionally in-band emission from the other subchannels of that
+subframe); b receives nothing in a subframe where it transmits (half duplex).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.rng import RngStreams
+from cv2x_marl.sim import channel, link, mobility, sps
+from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
+from cv2x_marl.sim.road import Road
+from cv2x_marl.units import db_to_linear, noise_power_dbm
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+LINK_COLUMNS: tuple[str, ...] = (
+    "tx",
+    "rx",
+    "subframe",
+    "subchannel",
+    "distance_m",
+    "nsv",
+    "interferer_distance_m",
+    "sinr_db",
+    "rx_power_dbm",
+    "p_success",
+    "outcome",
+    "cause",
+    "los",
+    "doppler_hz",
+)
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The network at one instant: what the env (and GBMU) start from.
+
+    Attributes:
+        subframe: absolute subframe index of the snapshot.
+        positions_m: [N, 2] positions.
+        velocities_mps: [N, 2] velocity vectors.
+        slot: [N] subframe of each vehicle's reserved resource within the period, ``[0, RRI)``.
+        subchannel: [N] subchannel of each reserved resource.
+        generation_slot: [N] slot at which each vehicle generates its packets.
+        counter: [N] SPS reselection counters.
+        los: [N, N] line-of-sight flags (symmetric).
+        shadowing_db: [N, N] shadowing (symmetric, dB, added as a loss).
+        rri_ms: reservation interval.
+        n_subchannels: subchannels per subframe.
+    """
+
+    subframe: int
+    positions_m: FloatArray
+    velocities_mps: FloatArray
+    slot: IntArray
+    subchannel: IntArray
+    generation_slot: IntArray
+    counter: IntArray
+    los: NDArray[np.bool_]
+    shadowing_db: FloatArray
+    rri_ms: int
+    n_subchannels: int
+
+
+@dataclass
+class RunResult:
+    """What one :meth:`Simulator.run` measured."""
+
+    metrics: PrrAccumulator
+    links: dict[str, np.ndarray] | None
+    n_subframes: int
+    runtime_s: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _Geometry:
+    """Per-period pair quantities. Ordered pairs are (rx, tx); the first half is (i, j), i < j."""
+
+    positions_m: FloatArray
+    rx: IntArray
+    tx: IntArray
+    distance_m: FloatArray
+    los: NDArray[np.bool_]
+    mean_rx_dbm: FloatArray
+    rx_mw: FloatArray
+    rel_speed_mps: FloatArray
+
+
+class Simulator:
+    """C-V2X Mode 4 network simulator.
+
+    Example:
+        >>> from cv2x_marl.config import preset
+        >>> sim = Simulator(preset("paper"))
+        >>> sim.reset(seed=1)
+        >>> result = sim.run(1000)
+        >>> 0.0 <= result.metrics.summary()["prr_mean"] <= 1.0
+        True
+    """
+
+    def __init__(self, config: ScenarioConfig) -> None:
+        if config.link.model == "rayleigh" and config.link.inband_emission_db is not None:
+            raise ConfigError("link.inband_emission_db is not supported with link.model=rayleigh; set it to null")
+        self.config = config
+        try:
+            self.road = Road.from_config(config.road)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        self.n = config.n_vehicles
+        self.rri = config.traffic.rri_ms
+        self.n_sub = config.sps.n_subchannels
+        self.n_res = self.rri * self.n_sub
+        self.noise_mw = float(db_to_linear(noise_power_dbm(config.radio.noise_dbm, config.radio.noise_figure_db)))
+        self.curve = link.load_per_curve(config.link.per_curve)
+        self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
+        self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
+        box = self.road.box_m
+        self._box = np.array(box) if config.road.kind == "grid" else np.array([box[0], np.inf])
+        iu, ju = np.triu_indices(self.n, 1)
+        self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
+        self._ready = False
+
+    # ------------------------------------------------------------------ state
+    def reset(self, seed: int, warmup_subframes: int | None = None) -> Snapshot:
+        """Place the vehicles, draw initial resources, run the warm-up; return the snapshot."""
+        cfg = self.config
+        self.rng = RngStreams.from_seed(seed)
+        self.state = mobility.place(self.road, cfg.vehicles, self.n, self.rng.placement)
+        self.shadowing = channel.Shadowing(self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing)
+        if cfg.traffic.synchronous:
+            self.generation_slot = np.zeros(self.n, dtype=np.int64)
+        else:
+            self.generation_slot = self.rng.traffic.integers(0, self.rri, size=self.n)
+        cand = sps.candidate_resources(self.generation_slot, cfg.sps, self.rri)
+        pick = self.rng.sps.integers(0, cand.shape[1], size=self.n)
+        self.resource = cand[np.arange(self.n), pick]
+        self.counter = sps.draw_counters(cfg.sps, self.rri, self.n, self.rng.sps)
+        self.subframe = 0
+        self._rssi_ring = np.full((self._sensing_periods, self.n, self.n_res), np.nan, dtype=np.float32)
+        self._new_period_buffers()
+        self._geometry: _Geometry | None = None
+        self.n_reselections = 0
+        self.n_expiries = 0
+        self.n_keeps = 0
+        self._ready = True
+        warm = cfg.sim.warmup_subframes if warmup_subframes is None else warmup_subframes
+        if warm:
+            self.run(warm, record=False)
+        return self.snapshot()
+
+    def _new_period_buffers(self) -> None:
+        self._period_rssi = np.zeros(self.n * self.n_res)
+        self._period_rsrp = np.full(self.n * self.n_res, -np.inf)
+
+    @property
+    def slot(self) -> IntArray:
+        """[N] slot of each reserved resource."""
+        return self.resource // self.n_sub
+
+    @property
+    def subchannel(self) -> IntArray:
+        """[N] subchannel of each reserved resource."""
+        return self.resource % self.n_sub
+
+    def snapshot(self) -> Snapshot:
+        """Positions, velocities, resources and channel state now (copies)."""
+        self._check_ready()
+        geo = self._period_geometry()
+        los = np.ones((self.n, self.n), dtype=bool)
+        sh = np.zeros((self.n, self.n))
+        h = geo.rx.shape[0] // 2
+        a, b = geo.rx[:h], geo.tx[:h]
+        los[a, b] = los[b, a] = geo.los[:h]
+        pl_free = self._path_loss_db(geo, h)
+        shadow = (self._tx_eirp_dbm() - pl_free) - geo.mean_rx_dbm[:h]
+        sh[a, b] = sh[b, a] = shadow
+        return Snapshot(
+            subframe=self.subframe,
+            positions_m=geo.positions_m.copy(),
+            velocities_mps=mobility.velocities_mps(self.state),
+            slot=self.slot.copy(),
+            subchannel=self.subchannel.copy(),
+            generation_slot=self.generation_slot.copy(),
+            counter=self.counter.copy(),
+            los=los,
+            shadowing_db=sh,
+            rri_ms=self.rri,
+            n_subchannels=self.n_sub,
+        )
+
+    def _check_ready(self) -> None:
+        if not self._ready:
+            raise RuntimeError("call Simulator.reset(seed) before run() or snapshot()")
+
+    # --------------------------------------------------------------- geometry
+    def displacement_m(self, pos_from: FloatArray, pos_to: FloatArray) -> FloatArray:
+        """[..., 2] displacement ``pos_to - pos_from`` (minimum image when distances wrap)."""
+        d = pos_to - pos_from
+        if self.config.road.wrap_distances:
+            box = self._box
+            periodic = np.isfinite(box)
+            d[..., periodic] -= box[periodic] * np.round(d[..., periodic] / box[periodic])
+        return d
+
+    def _pairs(self, pos: FloatArray) -> tuple[IntArray, IntArray]:
+        rng_m = self.config.link.max_range_m
+        if rng_m is None:
+            return self._all_pairs
+        if self.config.road.wrap_distances:
+            box = np.where(np.isfinite(self._box), self._box, 1e12)
+            tree = cKDTree(np.mod(pos, box), boxsize=box)
+        else:
+            tree = cKDTree(pos)
+        p = tree.query_pairs(rng_m, output_type="ndarray").astype(np.int64)
+        p.sort(axis=1)
+        p = p[np.lexsort((p[:, 1], p[:, 0]))]
+        return p[:, 0], p[:, 1]
+
+    def _tx_eirp_dbm(self) -> float:
+        r = self.config.radio
+        return r.tx_power_dbm + r.tx_antenna_gain_dbi + r.rx_antenna_gain_dbi
+
+    def _path_loss_db(self, geo: _Geometry, h: int) -> FloatArray:
+        """Path loss of the unordered pairs (first half of the ordered arrays)."""
+        ch, radio = self.config.channel, self.config.radio
+        i, j = geo.rx[:h], geo.tx[:h]
+        if ch.pathloss == "power_law":
+            d = np.maximum(geo.distance_m[:h], ch.min_distance_m)
+            return channel.power_law_db(
+                d, ch.power_law_k_db, ch.power_law_d0_m, ch.power_law_exponent, radio.carrier_hz
+            )
+        disp = self.displacement_m(geo.positions_m[i], geo.positions_m[j])
+        return channel.winner_b1_db(
+            disp[:, 0], disp[:, 1], geo.los[:h], radio.carrier_hz, ch.effective_height_m, ch.min_distance_m
+        )
+
+    def _period_geometry(self) -> _Geometry:
+        """Pair geometry and received powers for the current period (computed once per period)."""
+        if self._geometry is not None:
+            return self._geometry
+        cfg = self.config
+        pos = mobility.positions_m(self.road, self.state)
+        i, j = self._pairs(pos)
+        disp = self.displacement_m(pos[i], pos[j])
+        dist = np.hypot(disp[:, 0], disp[:, 1])
+        if cfg.channel.los == "always" or self.road.kind == "highway":
+            los = np.ones(i.shape[0], dtype=bool)
+        else:
+            hc, vc = self.road.corridors(pos)
+            los = ((hc[i] == hc[j]) & (hc[i] >= 0)) | ((vc[i] == vc[j]) & (vc[i] >= 0))
+        vel = mobility.velocities_mps(self.state)
+        rel = np.hypot(*(vel[i] - vel[j]).T)
+        geo = _Geometry(pos, i, j, dist, los, np.empty(0), np.empty(0), rel)
+        pl = self._path_loss_db(geo, i.shape[0])
+        ch = cfg.channel
+        if ch.shadowing_std_db > 0 or ch.shadowing_nlos_std_db > 0:
+            z = self.shadowing.sample(i, j, self.state.odometer_m)
+            pl = pl + np.where(los, ch.shadowing_std_db, ch.shadowing_nlos_std_db) * z
+        mean_dbm = self._tx_eirp_dbm() - pl
+        geo.rx = np.concatenate([i, j])
+        geo.tx = np.concatenate([j, i])
+        geo.distance_m = np.concatenate([dist, dist])
+        geo.los = np.concatenate([los, los])
+        geo.rel_speed_mps = np.concatenate([rel, rel])
+        geo.mean_rx_dbm = np.concatenate([mean_dbm, mean_dbm])
+        rx_mw = db_to_linear(geo.mean_rx_dbm)
+        if ch.fading == "rayleigh":
+            rx_mw = rx_mw * channel.rayleigh_power_gain(self.rng.fading, rx_mw.shape[0])
+        geo.rx_mw = rx_mw
+        self._geometry = geo
+        return geo
+
+    # -------------------------------------------------------------------- run
+    def run(
+        self,
+        n_subframes: int,
+        record: bool = True,
+        progress: Callable[[int], object] | None = None,
+    ) -> RunResult:
+        """Simulate ``n_subframes`` subframes from the current state.
+
+        Args:
+            n_subframes: subframes to simulate (need not be a whole number of periods).
+            record: measure PRR and keep the links table (False: warm-up).
+            progress: called with the number of subframes done after each period.
+
+        Returns:
+            The run's metrics and, when ``metrics.record_links``, the links table as columns.
+        """
+        self._check_ready()
+        if n_subframes < 0:
+            raise ValueError(f"n_subframes must be >= 0, got {n_subframes}")
+        cfg = self.config
+        acc = PrrAccumulator(self.n, cfg.metrics.prr_bin_m, cfg.metrics.max_distance_m)
+        keep_links = record and cfg.metrics.record_links
+        cols: dict[str, list[np.ndarray]] = {c: [] for c in LINK_COLUMNS}
+        t0 = time.perf_counter()
+        end = self.subframe + n_subframes
+        while self.subframe < end:
+            lo = self.subframe % self.rri
+            hi = min(self.rri, lo + end - self.subframe)
+            self._chunk(lo, hi, acc if record else None, cols if keep_links else None)
+            self.subframe += hi - lo
+            if hi == self.rri:
+                self._end_period()
+            if progress is not None:
+                progress(hi - lo)
+        links = {c: np.concatenate(v) if v else np.empty(0) for c, v in cols.items()} if keep_links else None
+        return RunResult(acc, links, n_subframes, time.perf_counter() - t0)
+
+    def _chunk(
+        self,
+        lo: int,
+        hi: int,
+        acc: PrrAccumulator | None,
+        cols: dict[str, list[np.ndarray]] | None,
+    ) -> None:
+        """All transmissions of the current period whose slot lies in ``[lo, hi)``."""
+        cfg = self.config
+        geo = self._period_geometry()
+        slot = self.slot
+        active = (slot >= lo) & (slot < hi)
+        if not np.any(active):
+            return
+        sel = active[geo.tx]
+        rx, tx = geo.rx[sel], geo.tx[sel]
+        s_mw = geo.rx_mw[sel]
+        res_tx = self.resource[tx]
+        key = rx * self.n_res + res_tx
+        total = np.bincount(key, weights=s_mw, minlength=self.n * self.n_res)
+        i_mw = np.maximum(total[key] - s_mw, 0.0)
+        if cfg.link.inband_emission_db is not None:
+            slot_key = rx * self.rri + slot[tx]
+            total_slot = np.bincount(slot_key, weights=s_mw, minlength=self.n * self.rri)
+            i_mw = i_mw + db_to_linear(cfg.link.inband_emission_db) * np.maximum(total_slot[slot_key] - total[key], 0.0)
+        hd = slot[rx] == slot[tx]
+        sinr_db = 10.0 * np.log10(s_mw / (i_mw + self.noise_mw))
+        snr_db = 10.0 * np.log10(s_mw / self.noise_mw)
+        rx_dbm = 10.0 * np.log10(s_mw)
+        n_links = rx.shape[0]
+
+        need_triples = cols is not None or cfg.link.model == "rayleigh"
+        if need_triples:
+            rep, partner = self._co_channel_terms(tx, rx, active)
+        model = cfg.link.model
+        if model == "per_table":
+            p = self.curve.success(sinr_db)
+            p0 = self.curve.success(snr_db)
+        elif model == "threshold":
+            p = link.threshold_success(sinr_db, cfg.link.sinr_threshold_db)
+            p0 = link.threshold_success(snr_db, cfg.link.sinr_threshold_db)
+        else:
+            mean_s = db_to_linear(geo.mean_rx_dbm[sel])
+            mean_i = self._mean_power_lookup(rx[rep], partner)
+            p = link.rayleigh_success(mean_s, self.noise_mw, mean_i, rep, cfg.link.sinr_threshold_db)
+            p0 = link.rayleigh_success(mean_s, self.noise_mw, np.empty(0), rep[:0], cfg.link.sinr_threshold_db)
+        u = self.rng.link.random(n_links)
+        if model == "rayleigh":
+            theta = cfg.link.sinr_threshold_db
+            outcome, would0 = sinr_db >= theta, snr_db >= theta
+        else:
+            outcome, would0 = u < p, u < p0
+        below = np.zeros(n_links, dtype=bool)
+        if cfg.radio.sensitivity_dbm is not None:
+            below = rx_dbm < cfg.radio.sensitivity_dbm
+        fail = hd | below
+        p = np.where(fail, 0.0, p)
+        outcome = outcome & ~fail
+        cause = np.zeros(n_links, dtype=np.int8)
+        cause[~outcome & ~would0] = CAUSE_CODE["propagation"]
+        cause[~outcome & would0] = CAUSE_CODE["collision"]
+        cause[below] = CAUSE_CODE["sensitivity"]
+        cause[hd] = CAUSE_CODE["half_duplex"]
+
+        # sensing: S-RSSI of every resource heard in this chunk, SCI RSRP of every decodable SCI
+        self._period_rssi += total
+        sci = ~fail
+        np.maximum.at(self._period_rsrp, key[sci], rx_dbm[sci] - self._rsrp_offset_db)
+
+        if acc is not None:
+            acc.add(tx, geo.distance_m[sel], p, outcome, cause, int(active.sum()))
+        if cols is not None:
+            rng_i = cfg.metrics.interferer_range_m
+            dpart = self.displacement_m(geo.positions_m[rx[rep]], geo.positions_m[partner])
+            dist_i = np.hypot(dpart[:, 0], dpart[:, 1])
+            near = dist_i <= rng_i
+            nsv = np.bincount(rep[near], minlength=n_links)
+            l_m = np.full(n_links, rng_i)
+            np.minimum.at(l_m, rep[near], dist_i[near])
+            period_start = self.subframe - lo
+            cols["tx"].append(tx.astype(np.int32))
+            cols["rx"].append(rx.astype(np.int32))
+            cols["subframe"].append(period_start + slot[tx])
+            cols["subchannel"].append(self.subchannel[tx].astype(np.int16))
+            cols["distance_m"].append(geo.distance_m[sel])
+            cols["nsv"].append(nsv.astype(np.int16))
+            cols["interferer_distance_m"].append(l_m)
+            cols["sinr_db"].append(sinr_db)
+            cols["rx_power_dbm"].append(rx_dbm)
+            cols["p_success"].append(p)
+            cols["outcome"].append(outcome)
+            cols["cause"].append(cause)
+            cols["los"].append(geo.los[sel])
+            cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
+
+    def _co_channel_terms(self, tx: IntArray, rx: IntArray, active: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
+        """For every link, the other transmitters on its resource (one row per (link, interferer)).
+
+        Returns:
+            ``rep`` [K]: index of the link; ``partner`` [K]: the co-channel transmitter
+            (never the link's own transmitter nor its receiver).
+        """
+        act = np.flatnonzero(active)
+        order = act[np.argsort(self.resource[act], kind="stable")]
+        r_sorted = self.resource[order]
+        starts = np.flatnonzero(np.r_[True, r_sorted[1:] != r_sorted[:-1]])
+        sizes = np.diff(np.r_[starts, order.shape[0]])
+        group_start = np.zeros(self.n, dtype=np.int64)
+        group_size = np.zeros(self.n, dtype=np.int64)
+        pos_in_group = np.zeros(self.n, dtype=np.int64)
+        gid = np.repeat(np.arange(starts.shape[0]), sizes)
+        group_start[order] = starts[gid]
+        group_size[order] = sizes[gid]
+        pos_in_group[order] = np.arange(order.shape[0]) - starts[gid]
+        deg = group_size[tx] - 1
+        rep = np.repeat(np.arange(tx.shape[0]), deg)
+        first = np.cumsum(deg) - deg
+        k = np.arange(rep.shape[0]) - first[rep]
+        a = tx[rep]
+        k = k + (k >= pos_in_group[a])
+        partner = order[group_start[a] + k]
+        keep = partner != rx[rep]
+        return rep[keep], partner[keep]
+
+    def _mean_power_lookup(self, rx: IntArray, tx: IntArray) -> FloatArray:
+        """Mean (unfaded) received power of arbitrary (rx, tx) pairs; 0 beyond the cut-off."""
+        geo = self._period_geometry()
+        dense = np.zeros((self.n, self.n))
+        dense[geo.rx, geo.tx] = db_to_linear(geo.mean_rx_dbm)
+        return dense[rx, tx]
+
+    def _end_period(self) -> None:
+        """Commit sensing, run the SPS counters and reselections, then move the vehicles."""
+        cfg = self.config
+        k = (self.subframe // self.rri - 1) % self._sensing_periods
+        ring = self._period_rssi.reshape(self.n, self.n_res).astype(np.float32)
+        ring += np.float32(self.noise_mw)
+        own = np.arange(self.n) * self.n_res
+        own_res = (self.slot * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
+        ring.reshape(-1)[(own[:, None] + own_res).reshape(-1)] = np.nan  # not monitored (half duplex)
+        self._rssi_ring[k] = ring
+        last_rsrp = self._period_rsrp.reshape(self.n, self.n_res)
+
+        self.counter -= 1
+        expired = self.counter <= 0
+        keep = self.rng.sps.random(self.n) < cfg.sps.keep_probability
+        reselect = np.flatnonzero(expired & ~keep)
+        self.n_expiries += int(expired.sum())
+        self.n_keeps += int((expired & keep).sum())
+        if np.any(expired):
+            self.counter[expired] = sps.draw_counters(cfg.sps, self.rri, int(expired.sum()), self.rng.sps)
+        if reselect.size:
+            cand = sps.candidate_resources(self.generation_slot[reselect], cfg.sps, self.rri)
+            rsrp = last_rsrp[reselect[:, None], cand]
+            if cfg.sps.exclude_unmonitored:
+                rsrp = np.where(cand // self.n_sub == self.slot[reselect][:, None], np.inf, rsrp)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: never measured
+                rssi = np.nanmean(self._rssi_ring[:, reselect[:, None], cand], axis=0)
+            rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)
+            choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
+            self.resource[reselect] = cand[np.arange(reselect.size), choice]
+            self.n_reselections += int(reselect.size)
+        self._new_period_buffers()
+        self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
+        self._geometry = None
