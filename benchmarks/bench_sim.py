@@ -90,7 +90,10 @@ def main() -> None:
     args = ap.parse_args()
     repeat = 2 if args.quick else 5
     rows = [bench_paper(repeat)]
-    print(f"paper preset, 10240 subframes: run {rows[0]['run_s']:.3f} s, reset+warm-up+run {rows[0]['reset_plus_run_s']:.3f} s")
+    print(
+        f"paper preset, 10240 subframes: run {rows[0]['run_s']:.3f} s, "
+        f"reset+warm-up+run {rows[0]['reset_plus_run_s']:.3f} s"
+    )
     sizes = [100, 500, 1000] if args.quick else [100, 250, 500, 1000, 2000]
     print("\n| vehicles | road (m) | simulated (s) | run time (s) | x real time | us per vehicle-period |")
     print("|---:|---:|---:|---:|---:|---:|")

@@ -18,6 +18,8 @@ from cv2x_marl.config import (
     preset,
     to_dict,
 )
+from cv2x_marl.experiments.dataset import DatasetError
+from cv2x_marl.regression import FitError, ModelError
 
 
 def _scenario(args: argparse.Namespace) -> ScenarioConfig:
@@ -64,6 +66,55 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.dataset import build_dataset
+
+    cfg = _scenario(args)
+    if args.subframes is not None:
+        cfg = apply_overrides(cfg, [f"sim.n_subframes={args.subframes}"])
+    manifest = build_dataset(cfg, args.runs, args.seed, args.out, args.aggregate_window_ms, progress=not args.quiet)
+    if args.json:
+        json.dump({k: v for k, v in manifest.items() if k != "config"}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(f"{manifest['rows']} samples from {args.runs} runs in {manifest['runtime_s']:.2f} s")
+        print("rows per NSV: " + ", ".join(f"{k}: {v}" for k, v in manifest["rows_per_nsv"].items()))
+        print(f"wrote {args.out / 'samples.parquet'} and {args.out / 'manifest.json'}")
+    return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.dataset import run_fit
+
+    result = run_fit(
+        args.data,
+        args.out,
+        kind=args.model,
+        target=args.target,
+        nsv_cap=args.nsv_cap,
+        test_fraction=args.test_fraction,
+        seed=args.seed,
+        min_samples=args.min_samples,
+        compare=args.compare,
+        figures=not args.no_figures,
+    )
+    if args.json:
+        json.dump(result, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(f"{'NSV':>4} {'alpha':>7} {'beta':>7} {'gamma':>7} {'R2':>6} {'R2test':>7} {'instances':>9}")
+        for r in result["per_nsv"]:
+            fb = f"  (from NSV {r['fallback_from']})" if r.get("fallback_from") is not None else ""
+            print(
+                f"{r['nsv']:>4} {r['alpha']:7.3f} {r['beta']:7.3f} {r['gamma']:7.3f} {r['r2']:6.3f} "
+                f"{r['r2_test']:7.3f} {r['instances']:9d}{fb}"
+            )
+        for k, o in result.get("comparison", {}).items():
+            print(f"held out, {k}: R2 {o['r2']:.3f}, Brier {o['brier']:.4f}, log-loss {o['log_loss']:.4f}")
+        print(f"wrote {args.out}, {args.data / 'table2.md'}, {args.data / 'table3.md'}")
+    return 0
+
+
 def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
@@ -87,6 +138,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_simulate)
 
+    p = sub.add_parser("dataset", help="stage-1 dataset: K independent runs of link samples")
+    _add_scenario_args(p)
+    p.add_argument("--runs", type=int, default=10, help="independent runs (seeds derived from --seed)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--subframes", type=int, help="subframes per run (default: sim.n_subframes)")
+    p.add_argument(
+        "--aggregate-window-ms",
+        type=int,
+        default=0,
+        help="aggregate per (run, link, window, NSV) into an empirical reception rate (0: per transmission)",
+    )
+    p.add_argument("--out", type=Path, required=True, help="dataset folder")
+    p.add_argument("--json", action="store_true", help="print the manifest as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_dataset)
+
+    p = sub.add_parser("fit", help="stage-2 fit of the two-distance model per NSV (eq. 15)")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder (from `cv2x-marl dataset`)")
+    p.add_argument("--out", type=Path, required=True, help="model file to write (JSON)")
+    p.add_argument("--model", default="linear", choices=["linear", "logistic"], help="model family")
+    p.add_argument("--target", default="p_success", choices=["p_success", "outcome", "rate"])
+    p.add_argument("--nsv-cap", type=int, default=6, help="NSV values above are pooled into the cap")
+    p.add_argument("--test-fraction", type=float, default=0.2, help="share of runs held out")
+    p.add_argument("--min-samples", type=int, default=30, help="below this an NSV borrows a neighbour's fit")
+    p.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    p.add_argument("--compare", action="store_true", help="also fit the other family and compare on held-out data")
+    p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--json", action="store_true", help="print per-NSV coefficients and statistics as JSON")
+    p.set_defaults(func=_cmd_fit)
+
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)
     p.add_argument("--markdown", action="store_true", help="print docs/config.md (every key, unit, default, range)")
@@ -102,6 +183,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except ConfigError as exc:
         print(f"cv2x-marl: configuration error: {exc}", file=sys.stderr)
+        return 2
+    except (DatasetError, FitError, ModelError) as exc:
+        print(f"cv2x-marl: error: {exc}", file=sys.stderr)
         return 2
 
 

@@ -1,0 +1,210 @@
+"""The two-distance reception model of eq. 15, and a logistic refinement.
+
+Per NSV value ``k`` (pooled at ``nsv_cap``), a linear predictor in the log10 of the two
+distances in metres (READING.md settles the base and unit):
+
+    eta_k(d, l) = alpha_k log10 d + beta_k log10 l + gamma_k
+
+* ``linear`` (the paper's eq. 15): ``P = clip(eta, p_min, 1)``.
+* ``logistic`` (beyond the paper): ``P = clip(sigmoid(eta), p_min, 1)``. Same inputs, same
+  number of parameters, but bounded by construction and fitted by maximum likelihood, so it does
+  not need the clip to stay a probability and its gradient fades where P saturates.
+
+``grad_d`` is eq. 16's ``dP/dd`` of the unclipped model, analytic:
+``alpha / (d ln 10)`` (linear) and ``P (1 - P) alpha / (d ln 10)`` (logistic). GBMU's step is
+``G = grad_d / P`` (eq. 16: ``G = alpha / (d P)`` up to the ``ln 10`` of the log base).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cv2x_marl.io import write_json
+
+FloatArray = NDArray[np.float64]
+SCHEMA_VERSION = 1
+KINDS: tuple[str, ...] = ("linear", "logistic")
+LN10 = math.log(10.0)
+
+
+class ModelError(ValueError):
+    """A model file is missing, corrupt, of another schema, or of an unknown kind."""
+
+
+# The paper's Table 2 (NSV 0..6), log10 of metres.
+PAPER_TABLE2: dict[str, list[float]] = {
+    "alpha": [-0.83, -0.71, -0.61, -0.67, -0.72, -0.76, -0.74],
+    "beta": [0.52, 0.19, 0.12, 0.09, 0.06, -0.02, 0.25],
+    "gamma": [1.00, 1.42, 1.26, 1.44, 1.54, 1.73, 1.25],
+}
+
+
+@dataclass
+class TwoDistanceModel:
+    """Per-NSV coefficients of eq. 15 (``kind="linear"``) or its logistic version.
+
+    Attributes:
+        kind: ``linear`` or ``logistic``.
+        alpha, beta, gamma: [nsv_cap + 1] coefficients; row k serves NSV = k (k = cap: NSV >= cap).
+        p_min: lower clip of P (eq. 12's log needs P > 0).
+        stats: per-NSV fit statistics (instances, R^2, ...), as written by the fit.
+        provenance: where the fit's data came from.
+    """
+
+    kind: str
+    alpha: FloatArray
+    beta: FloatArray
+    gamma: FloatArray
+    p_min: float = 1e-3
+    stats: list[dict[str, Any]] = field(default_factory=list)
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ModelError(f"unknown model kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+        self.alpha = np.asarray(self.alpha, dtype=np.float64)
+        self.beta = np.asarray(self.beta, dtype=np.float64)
+        self.gamma = np.asarray(self.gamma, dtype=np.float64)
+        if not (self.alpha.shape == self.beta.shape == self.gamma.shape) or self.alpha.ndim != 1 or not self.alpha.size:
+            raise ModelError("alpha, beta and gamma must be equal-length, non-empty 1-D arrays")
+        if not np.all(np.isfinite(np.r_[self.alpha, self.beta, self.gamma])):
+            raise ModelError("model coefficients must be finite")
+        if not 0.0 < self.p_min < 1.0:
+            raise ModelError(f"p_min must lie in (0, 1), got {self.p_min}")
+
+    @property
+    def nsv_cap(self) -> int:
+        """Largest NSV with its own coefficients; larger NSV use this row."""
+        return int(self.alpha.shape[0] - 1)
+
+    @classmethod
+    def paper_table2(cls, p_min: float = 1e-3) -> TwoDistanceModel:
+        """The authors' own coefficients (Table 2), for running GBMU as published."""
+        return cls(
+            "linear",
+            np.array(PAPER_TABLE2["alpha"]),
+            np.array(PAPER_TABLE2["beta"]),
+            np.array(PAPER_TABLE2["gamma"]),
+            p_min=p_min,
+            provenance={"source": "paper Table 2 (Men and Hou)"},
+        )
+
+    def _rows(self, nsv: ArrayLike) -> NDArray[np.int64]:
+        k = np.asarray(nsv)
+        if np.any(k < 0):
+            raise ValueError("nsv must be >= 0")
+        return np.minimum(k.astype(np.int64), self.nsv_cap)
+
+    def eta(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """Linear predictor ``alpha log10 d + beta log10 l + gamma`` (broadcast shapes)."""
+        k = self._rows(nsv)
+        return self.alpha[k] * np.log10(d_m) + self.beta[k] * np.log10(l_m) + self.gamma[k]
+
+    def predict_unclipped(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """P before the [p_min, 1] clip."""
+        e = self.eta(d_m, l_m, nsv)
+        return e if self.kind == "linear" else 1.0 / (1.0 + np.exp(-e))
+
+    def predict(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """Success probability, clipped to ``[p_min, 1]``.
+
+        Args:
+            d_m: signal distance(s), metres (> 0).
+            l_m: main-interference distance(s), metres (> 0; th_I when NSV = 0).
+            nsv: number of surrounding co-channel vehicles (>= 0, pooled at the cap).
+        """
+        return np.clip(self.predict_unclipped(d_m, l_m, nsv), self.p_min, 1.0)
+
+    def grad_d(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """``dP/dd`` of the unclipped model (eq. 16), per metre."""
+        k = self._rows(nsv)
+        base = self.alpha[k] / (np.asarray(d_m, dtype=np.float64) * LN10)
+        if self.kind == "linear":
+            return np.broadcast_to(base, np.broadcast_shapes(base.shape, np.shape(l_m))).astype(np.float64)
+        p = self.predict_unclipped(d_m, l_m, nsv)
+        return p * (1.0 - p) * base
+
+    def grad_l(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """``dP/dl`` of the unclipped model, per metre."""
+        k = self._rows(nsv)
+        base = self.beta[k] / (np.asarray(l_m, dtype=np.float64) * LN10)
+        if self.kind == "linear":
+            return np.broadcast_to(base, np.broadcast_shapes(base.shape, np.shape(d_m))).astype(np.float64)
+        p = self.predict_unclipped(d_m, l_m, nsv)
+        return p * (1.0 - p) * base
+
+    # ----------------------------------------------------------------- JSON
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready representation (schema ``SCHEMA_VERSION``)."""
+        per_nsv = []
+        for k in range(self.nsv_cap + 1):
+            row: dict[str, Any] = {
+                "nsv": k,
+                "alpha": float(self.alpha[k]),
+                "beta": float(self.beta[k]),
+                "gamma": float(self.gamma[k]),
+            }
+            if k < len(self.stats):
+                row.update({key: v for key, v in self.stats[k].items() if key != "nsv"})
+            per_nsv.append(row)
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "kind": self.kind,
+            "log_base": 10,
+            "distance_unit": "m",
+            "p_min": self.p_min,
+            "nsv_cap": self.nsv_cap,
+            "per_nsv": per_nsv,
+            "provenance": self.provenance,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "model") -> TwoDistanceModel:
+        """Inverse of :meth:`to_dict`; raises :class:`ModelError` naming ``source`` on bad input."""
+        if not isinstance(data, dict):
+            raise ModelError(f"{source}: expected a JSON object")
+        version = data.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise ModelError(f"{source}: schema_version {version!r} is not supported (expected {SCHEMA_VERSION})")
+        try:
+            rows = sorted(data["per_nsv"], key=lambda r: int(r["nsv"]))
+            if [int(r["nsv"]) for r in rows] != list(range(len(rows))):
+                raise ModelError(f"{source}: per_nsv must list NSV 0, 1, ... without gaps")
+            coef = {c: np.array([float(r[c]) for r in rows]) for c in ("alpha", "beta", "gamma")}
+            stats = [{k: v for k, v in r.items() if k not in ("alpha", "beta", "gamma")} for r in rows]
+            return cls(
+                str(data["kind"]),
+                coef["alpha"],
+                coef["beta"],
+                coef["gamma"],
+                p_min=float(data.get("p_min", 1e-3)),
+                stats=stats,
+                provenance=dict(data.get("provenance", {})),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, ModelError):
+                raise
+            raise ModelError(f"{source}: malformed model ({type(exc).__name__}: {exc})") from exc
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model as JSON (atomically)."""
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> TwoDistanceModel:
+        """Read a model file written by :meth:`save` (or ``cv2x-marl fit``)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError as exc:
+            raise ModelError(f"model file {path} does not exist") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ModelError(f"model file {path} is not valid JSON: {exc}") from exc
+        return cls.from_dict(data, source=f"model file {path}")
