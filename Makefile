@@ -28,6 +28,8 @@ test: lint
 
 bench: install
 	$(BIN)/python benchmarks/bench_sim.py
+	$(BIN)/python benchmarks/bench_regression.py
+	$(BIN)/python benchmarks/bench_gbmu.py
 
 docs: install
 	$(BIN)/cv2x-marl config --markdown > docs/config.md

@@ -115,6 +115,42 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_gbmu(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.dataset import load_model
+    from cv2x_marl.experiments.gbmu_study import run_study
+
+    cfg = _scenario(args)
+    model = load_model(args.model)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    summary = run_study(
+        args.case,
+        cfg,
+        model,
+        args.out,
+        seed=args.seed,
+        realizations=args.realizations,
+        iterations=args.iterations,
+        delta=args.step,
+        th_pos_m=args.th_pos,
+        truth_los=args.truth_los,
+        methods=methods,
+        progress=not args.quiet,
+    )
+    if args.json:
+        json.dump({k: v for k, v in summary.items() if k != "config"}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(f"case {args.case}, {summary['n_realizations']} realisation(s), model {model.kind}")
+        for name, m in summary["methods"].items():
+            print(
+                f"{name:>7}: effectiveness {m['effectiveness']:.1%}, utility gain {m['mean_utility_gain']:+.1%}, "
+                f"PRR gain {m['mean_prr_gain']:+.1%}, PRR drops {m['n_prr_drop']}, moved {m['mean_moved_m']:.1f} m"
+            )
+        if args.out:
+            print(f"wrote {args.out}/summary.json, realizations.csv and figures")
+    return 0
+
+
 def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
@@ -167,6 +203,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--json", action="store_true", help="print per-NSV coefficients and statistics as JSON")
     p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser("gbmu", help="GBMU mobility studies (Fig. 5-10) with greedy and oracle references")
+    _add_scenario_args(p)
+    p.add_argument("--case", default="realizations", choices=["seven-node", "snapshot", "realizations"])
+    p.add_argument("--realizations", type=int, default=144, help="snapshots in the realizations case")
+    p.add_argument("--iterations", type=int, default=10_000, help="iteration cap")
+    p.add_argument("--step", type=float, default=1.0, help="step size delta")
+    p.add_argument("--th-pos", type=float, default=1e-4, help="stop when a move is shorter than this (m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--model", type=Path, default=Path("paper-table2"), help="fitted model JSON, or paper-table2 (default)"
+    )
+    p.add_argument("--methods", default="gbmu,greedy,oracle", help="comma-separated: gbmu, greedy, oracle")
+    p.add_argument(
+        "--truth-los",
+        default="snapshot",
+        choices=["snapshot", "geometry", "always"],
+        help="LOS state of the mover's links in the ground truth",
+    )
+    p.add_argument("--out", type=Path, help="output folder")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_gbmu)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)

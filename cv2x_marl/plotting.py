@@ -107,3 +107,81 @@ def plot_fit_quality(model: Any, path: str | Path) -> Path:
     ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
     ax.set_title(f"Two-distance model fit per NSV ({model.kind})")
     return _save(fig, path)
+
+
+METHOD_STYLE = {"gbmu": ("#e15759", "GBMU"), "greedy": ("#4e79a7", "greedy (eq. 9)"), "oracle": ("#59a14f", "oracle")}
+
+
+def plot_trajectories(
+    snapshot: Any, mover: int, target: Any, runs: dict[str, Any], path: str | Path, case: str
+) -> Path:
+    """Fig. 5 / Fig. 7: the network and each method's path for the mover."""
+    import numpy as np
+
+    pos = snapshot.positions_m
+    res = snapshot.slot * snapshot.n_subchannels + snapshot.subchannel
+    co = (res == res[mover]) & (np.arange(pos.shape[0]) != mover)
+    fig, ax = plt.subplots(figsize=(6.5, 6.0), constrained_layout=True)
+    ax.scatter(pos[target, 0], pos[target, 1], s=45, c="#4e79a7", label="target receivers", zorder=3)
+    others = ~target & ~co
+    others[mover] = False
+    if others.any():
+        ax.scatter(pos[others, 0], pos[others, 1], s=30, c="#bab0ac", label="half duplex (same subframe)", zorder=3)
+    if co.any():
+        ax.scatter(pos[co, 0], pos[co, 1], s=60, marker="^", c="#f28e2b", label="co-channel interferers", zorder=3)
+    for j in np.flatnonzero(target | co):
+        ax.annotate(f"UE{j}", pos[j], textcoords="offset points", xytext=(4, 4), fontsize=7)
+    for name, r in runs.items():
+        color, label = METHOD_STYLE[name]
+        tr = r.climb.trajectory_m[:, 0, :]
+        ax.plot(tr[:, 0], tr[:, 1], "-", color=color, lw=1.8, label=f"{label}: {r.utility_gain[0]:+.1%} utility")
+        ax.plot(*tr[-1], "o", color=color, ms=7, mfc="white", mew=2, zorder=4)
+    ax.plot(*pos[mover], "*", color="k", ms=16, label=f"UE{mover} start", zorder=5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title(f"{case}: moving update of UE{mover} (true eq. 12 utility gain)")
+    return _save(fig, path)
+
+
+def plot_gain_curves(runs: dict[str, Any], path: str | Path, case: str) -> Path:
+    """Fig. 6 / Fig. 8: true normalised utility gain (eq. 17) against the iteration."""
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    for name, r in runs.items():
+        color, label = METHOD_STYLE[name]
+        u = r.utility_curve[:, 0]
+        gain = (u - u[0]) / abs(u[0])
+        ax.plot(r.climb.recorded_iterations, 100 * gain, color=color, lw=1.8, label=label)
+    ax.set_xlabel("iteration k")
+    ax.set_ylabel("utility gain (eq. 17), %")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(f"{case}: gain convergence (ground truth from the link model)")
+    return _save(fig, path)
+
+
+def plot_realization_gains(runs: dict[str, Any], path: str | Path) -> Path:
+    """Fig. 9 and 10: per-realisation utility and PRR gains, sorted by GBMU's gain."""
+    import numpy as np
+
+    first = runs.get("gbmu", next(iter(runs.values())))
+    order = np.argsort(first.utility_gain)
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
+    x = np.arange(order.size)
+    for ax, attr, title in ((axes[0], "utility_gain", "utility (eq. 12)"), (axes[1], "prr_gain", "PRR")):
+        for name, r in runs.items():
+            color, label = METHOD_STYLE[name]
+            vals = 100 * getattr(r, attr)[order]
+            if name == "gbmu":
+                ax.bar(x, vals, color=color, alpha=0.7, label=f"{label} (mean {np.nanmean(vals):+.1f} %)")
+            else:
+                ax.plot(x, vals, ".", color=color, ms=4, label=f"{label} (mean {np.nanmean(vals):+.1f} %)")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_ylabel(f"normalised gain in {title}, %")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[1].set_xlabel("realisation (sorted by GBMU utility gain)")
+    axes[0].set_title(f"Gains at convergence over {order.size} realisations (Fig. 9 and 10)")
+    return _save(fig, path)

@@ -1,0 +1,177 @@
+"""GBMU, the paper's gradient-based mobility updating (Sec. 5, steps 1-5), over arrays.
+
+GBMU knows, for each target receiver j of the mover i (one-hop information, Sec. 5):
+the position of j, the distance ``l_j`` from j to its main interferer (from the interferer's
+position), ``NSV_j``, and the fitted two-distance model. Steps, batched over B movers:
+
+1. ``G_ij = alpha_j / (d_ij P_ij)`` (eq. 16), computed as ``ln(10) dP/dd / P`` so it is exact
+   for any model family (for eq. 15 with log10 it is the paper's expression verbatim);
+2. ``t_j = (Pos_i - Pos_j) / d_ij``;
+3. ``Pos_ij = Pos_i + delta t_j G_ij``;
+4. ``Pos_i <- mean_j Pos_ij``;
+5. stop when ``||Pos_i(k+1) - Pos_i(k)|| < Th_pos`` (or at the iteration cap).
+
+Steps 3-4 are ``Pos_i += delta mean_j(t_j G_ij)``: gradient ascent on the model's eq. 12 utility
+with step ``delta / |R_i|`` (since ``dd_ij / dPos_i = t_j``). The greedy variant uses eq. 9
+(``G = ln(10) dP/dd``, no 1/P); the oracle climbs the true eq. 12 utility of the simulator's link
+model with the same step rule, its gradient by central finite differences.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.regression.model import TwoDistanceModel
+from cv2x_marl.utility import utility_log
+
+FloatArray = NDArray[np.float64]
+LN10 = math.log(10.0)
+
+
+@dataclass(frozen=True)
+class GbmuInputs:
+    """What the mover is allowed to know, for B movers with up to R receivers each.
+
+    Attributes:
+        rx_m: [B, R, 2] receiver positions.
+        l_m: [B, R] distance from each receiver to its main interferer (th_I when NSV = 0).
+        nsv: [B, R] NSV of each receiver.
+        mask: [B, R] which receivers are targets.
+    """
+
+    rx_m: FloatArray
+    l_m: FloatArray
+    nsv: NDArray[np.int64]
+    mask: NDArray[np.bool_]
+
+    def __post_init__(self) -> None:
+        b, r = self.mask.shape
+        if self.rx_m.shape != (b, r, 2) or self.l_m.shape != (b, r) or self.nsv.shape != (b, r):
+            raise ValueError("rx_m must be [B, R, 2] and l_m, nsv, mask [B, R]")
+        if np.any(self.l_m[self.mask] <= 0):
+            raise ValueError("main-interference distances must be > 0 m")
+
+
+def gbmu_direction(
+    inputs: GbmuInputs,
+    model: TwoDistanceModel,
+    fairness: bool = True,
+    min_distance_m: float = 1.0,
+) -> Callable[[FloatArray], FloatArray]:
+    """Step function ``pos [B, 2] -> mean_j t_j G_ij [B, 2]`` of GBMU (or greedy, ``fairness=False``)."""
+    k = np.minimum(inputs.nsv, model.nsv_cap)
+    a = model.alpha[k]
+    const = model.beta[k] * np.log10(np.where(inputs.mask, inputs.l_m, 1.0)) + model.gamma[k]
+    w = inputs.mask / np.maximum(inputs.mask.sum(axis=1, keepdims=True), 1)
+    logistic = model.kind == "logistic"
+    p_min = model.p_min
+
+    def direction(pos: FloatArray) -> FloatArray:
+        diff = pos[:, None, :] - inputs.rx_m
+        d = np.maximum(np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2), min_distance_m)
+        eta = a * np.log10(d) + const
+        if logistic:
+            p_raw = 1.0 / (1.0 + np.exp(-eta))
+            dpdd_ln10 = p_raw * (1.0 - p_raw) * a / d  # ln(10) dP/dd
+        else:
+            p_raw = eta
+            dpdd_ln10 = a / d
+        g = dpdd_ln10 / np.clip(p_raw, p_min, 1.0) if fairness else dpdd_ln10
+        coef = w * g / d  # t_j = diff / d
+        return np.einsum("br,brc->bc", coef, diff)
+
+    return direction
+
+
+def oracle_direction(
+    success: Callable[[FloatArray], FloatArray],
+    mask: NDArray[np.bool_],
+    p_min: float = 1e-3,
+    h_m: float = 5.0,
+) -> Callable[[FloatArray], FloatArray]:
+    """Step function of the oracle: ``grad U_true / |R|`` by central differences of the link model.
+
+    The PER table makes the true utility piecewise flat (P is 0 below -2 dB and 0.999 above
+    12 dB), so an infinitesimal gradient stalls on plateaus; the default secant over +-5 m
+    smooths over them. The oracle is still a local climber: an upper reference for local
+    moves, not a bound on what a far move can reach.
+    """
+    n_rx = np.maximum(mask.sum(axis=1), 1)[:, None]
+
+    def utility(pos: FloatArray) -> FloatArray:
+        return utility_log(success(pos), mask, p_min)
+
+    def direction(pos: FloatArray) -> FloatArray:
+        grad = np.empty_like(pos)
+        for c in range(2):
+            e = np.zeros(2)
+            e[c] = h_m
+            grad[:, c] = (utility(pos + e) - utility(pos - e)) / (2 * h_m)
+        return grad / n_rx
+
+    return direction
+
+
+@dataclass
+class ClimbResult:
+    """Outcome of :func:`climb` for B movers.
+
+    Attributes:
+        final_m: [B, 2] final positions.
+        iterations: [B] iterations each mover ran before stopping (Th_pos) or the cap.
+        converged: [B] stopped by Th_pos.
+        trajectory_m: [T, B, 2] positions at the recorded iterations (``record_every``).
+        recorded_iterations: [T] the iteration numbers recorded (0 = start).
+    """
+
+    final_m: FloatArray
+    iterations: NDArray[np.int64]
+    converged: NDArray[np.bool_]
+    trajectory_m: FloatArray
+    recorded_iterations: NDArray[np.int64]
+    extra: dict[str, FloatArray] = field(default_factory=dict)
+
+
+def climb(
+    start_m: FloatArray,
+    direction: Callable[[FloatArray], FloatArray],
+    delta: float = 1.0,
+    th_pos_m: float = 1e-4,
+    max_iterations: int = 10_000,
+    record_every: int = 0,
+    progress: Callable[[int], object] | None = None,
+) -> ClimbResult:
+    """Iterate ``Pos += delta * direction(Pos)`` (steps 3-4) until the move is below Th_pos (step 5).
+
+    Movers that have stopped stay put while the others go on; the loop ends when all have
+    stopped or at ``max_iterations``.
+    """
+    if delta <= 0 or th_pos_m < 0 or max_iterations < 0:
+        raise ValueError("delta must be > 0, th_pos_m >= 0 and max_iterations >= 0")
+    pos = np.array(start_m, dtype=np.float64, copy=True)
+    b = pos.shape[0]
+    active = np.ones(b, dtype=bool)
+    iterations = np.zeros(b, dtype=np.int64)
+    traj = [pos.copy()]
+    rec = [0]
+    for k in range(1, max_iterations + 1):
+        step = delta * direction(pos)
+        move = np.hypot(step[:, 0], step[:, 1])
+        moving = active & (move >= th_pos_m)
+        pos[moving] += step[moving]
+        iterations[moving] = k
+        active = moving
+        if record_every and (k % record_every == 0 or not active.any()):
+            traj.append(pos.copy())
+            rec.append(k)
+        if progress is not None and k % 100 == 0:
+            progress(100)
+        if not active.any():
+            break
+    converged = ~active
+    return ClimbResult(pos, iterations, converged, np.array(traj), np.array(rec))

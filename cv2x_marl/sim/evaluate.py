@@ -1,0 +1,184 @@
+"""Ground truth for a moved transmitter: its links' success probability from the link model.
+
+Given stage-1 snapshots and one mover per snapshot, :class:`MoverLinks` answers "if the mover
+stood at position x, what would be the success probability of its packet at every receiver?"
+with the simulator's own link model: path loss from x to each receiver (the snapshot's shadowing
+and, by default, its LOS state per link), interference at each receiver from the other vehicles
+transmitting on the mover's resource (fixed: they do not move), noise, then the PER table / Rayleigh
+closed form / threshold. Expected values (no fading draw). Batched over snapshots: arrays are
+``[B, N]`` for B snapshots of N vehicles.
+
+``truth_los``: ``snapshot`` keeps each link's LOS/NLOS state from the snapshot (the mover is
+taken to stay in its street system), ``geometry`` recomputes it from x with the corridor rule,
+``always`` forces LOS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.config import ScenarioConfig
+from cv2x_marl.sim import channel, link
+from cv2x_marl.sim.road import Road
+from cv2x_marl.sim.simulator import Snapshot
+from cv2x_marl.units import db_to_linear, noise_power_dbm
+
+FloatArray = NDArray[np.float64]
+TRUTH_LOS = ("snapshot", "geometry", "always")
+
+
+def mean_rx_dbm(config: ScenarioConfig, road: Road, pos_tx: FloatArray, pos_rx: FloatArray, los: NDArray[np.bool_],
+                shadow_db: FloatArray) -> FloatArray:  # fmt: skip
+    """Mean received power (dBm) for transmitter/receiver positions ``[..., 2]`` (broadcast)."""
+    disp = np.asarray(pos_rx - pos_tx, dtype=np.float64)
+    if config.road.wrap_distances:
+        box = np.array(road.box_m)
+        periodic = np.array([True, config.road.kind == "grid"])
+        disp[..., periodic] -= box[periodic] * np.round(disp[..., periodic] / box[periodic])
+    ch, radio = config.channel, config.radio
+    if ch.pathloss == "power_law":
+        d = np.maximum(np.hypot(disp[..., 0], disp[..., 1]), ch.min_distance_m)
+        pl = channel.power_law_db(d, ch.power_law_k_db, ch.power_law_d0_m, ch.power_law_exponent, radio.carrier_hz)
+    else:
+        pl = channel.winner_b1_db(
+            disp[..., 0], disp[..., 1], los, radio.carrier_hz, ch.effective_height_m, ch.min_distance_m
+        )
+    eirp = radio.tx_power_dbm + radio.tx_antenna_gain_dbi + radio.rx_antenna_gain_dbi
+    return eirp - pl - shadow_db
+
+
+@dataclass
+class MoverLinks:
+    """Everything fixed about a mover's links in B snapshots; :meth:`success` varies its position.
+
+    Attributes:
+        rx_pos_m: [B, N, 2] receiver positions (the mover's own row is masked out).
+        target: [B, N] target receivers (not the mover, not transmitting in its subframe, in range).
+        los: [B, N] LOS state of each mover link in the snapshot.
+        shadow_db: [B, N] shadowing of each mover link.
+        interference_mw: [B, N] mean interference at each receiver on the mover's resource.
+        interferer_mw: [B, N, C] the individual terms (Rayleigh closed form), zero-padded.
+        start_m: [B, 2] mover positions in the snapshots.
+        mover: [B] index of the mover in each snapshot.
+    """
+
+    config: ScenarioConfig
+    road: Road
+    rx_pos_m: FloatArray
+    target: NDArray[np.bool_]
+    los: NDArray[np.bool_]
+    shadow_db: FloatArray
+    interference_mw: FloatArray
+    interferer_mw: FloatArray
+    start_m: FloatArray
+    mover: NDArray[np.int64]
+    truth_los: str = "snapshot"
+
+    @classmethod
+    def from_snapshots(
+        cls,
+        config: ScenarioConfig,
+        snapshots: Sequence[Snapshot],
+        movers: Sequence[int],
+        truth_los: str = "snapshot",
+        neighbourhood_m: float | None = None,
+    ) -> MoverLinks:
+        """Collect the mover links of each snapshot (all with the same vehicle count)."""
+        if truth_los not in TRUTH_LOS:
+            raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
+        road = Road.from_config(config.road)
+        n = snapshots[0].positions_m.shape[0]
+        b = len(snapshots)
+        rx_pos = np.zeros((b, n, 2))
+        target = np.zeros((b, n), dtype=bool)
+        los = np.zeros((b, n), dtype=bool)
+        shadow = np.zeros((b, n))
+        interf = np.zeros((b, n))
+        terms: list[FloatArray] = []
+        for k, (snap, i) in enumerate(zip(snapshots, movers, strict=True)):
+            if snap.positions_m.shape[0] != n:
+                raise ValueError("all snapshots must hold the same number of vehicles")
+            pos = snap.positions_m
+            res = snap.slot * snap.n_subchannels + snap.subchannel
+            rx_pos[k] = pos
+            los[k] = snap.los[i]
+            shadow[k] = snap.shadowing_db[i]
+            tgt = snap.slot != snap.slot[i]
+            dist = np.hypot(*(pos - pos[i]).T)
+            if config.link.max_range_m is not None:
+                tgt &= dist <= config.link.max_range_m
+            if neighbourhood_m is not None:
+                tgt &= dist <= neighbourhood_m
+            tgt[i] = False
+            target[k] = tgt
+            co = np.flatnonzero((res == res[i]) & (np.arange(n) != i))
+            # mean power of each co-channel transmitter c at every receiver j: [N, C]
+            p_cj = db_to_linear(
+                mean_rx_dbm(
+                    config, road, pos[co][None, :, :], pos[:, None, :], snap.los[:, co], snap.shadowing_db[:, co]
+                )
+            )
+            if config.link.max_range_m is not None:
+                dcj = np.hypot(*(pos[:, None, :] - pos[co][None, :, :]).transpose(2, 0, 1))
+                p_cj = np.where(dcj <= config.link.max_range_m, p_cj, 0.0)
+            p_cj[co, np.arange(co.size)] = 0.0  # a transmitter does not interfere with itself
+            interf[k] = p_cj.sum(axis=1)
+            terms.append(p_cj)
+            if config.link.inband_emission_db is not None:  # leakage from the other subchannels of the subframe
+                oth = np.flatnonzero((snap.slot == snap.slot[i]) & (res != res[i]))
+                p_oj = db_to_linear(
+                    mean_rx_dbm(config, road, pos[oth][None], pos[:, None], snap.los[:, oth], snap.shadowing_db[:, oth])
+                )
+                if config.link.max_range_m is not None:
+                    doj = np.hypot(*(pos[:, None, :] - pos[oth][None, :, :]).transpose(2, 0, 1))
+                    p_oj = np.where(doj <= config.link.max_range_m, p_oj, 0.0)
+                p_oj[oth, np.arange(oth.size)] = 0.0
+                interf[k] += db_to_linear(config.link.inband_emission_db) * p_oj.sum(axis=1)
+        c_max = max((t.shape[1] for t in terms), default=0)
+        interferer = np.zeros((b, n, c_max))
+        for k, t in enumerate(terms):
+            interferer[k, :, : t.shape[1]] = t
+        start = rx_pos[np.arange(b), np.asarray(movers)]
+        return cls(config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los)
+
+    def _los_at(self, pos_m: FloatArray) -> NDArray[np.bool_]:
+        if self.truth_los == "snapshot":
+            return self.los
+        if self.truth_los == "always" or self.road.kind == "highway":
+            return np.ones_like(self.los)
+        b, n = self.los.shape
+        hc_m, vc_m = self.road.corridors(pos_m)
+        hc, vc = self.road.corridors(self.rx_pos_m.reshape(-1, 2))
+        hc, vc = hc.reshape(b, n), vc.reshape(b, n)
+        return ((hc == hc_m[:, None]) & (hc >= 0)) | ((vc == vc_m[:, None]) & (vc >= 0))
+
+    def success(self, pos_m: FloatArray) -> FloatArray:
+        """[B, N] expected success probability of the mover's packet at each receiver.
+
+        Args:
+            pos_m: [B, 2] mover positions (one per snapshot).
+
+        Returns:
+            P per receiver; 0 for non-targets (and for receivers below the sensitivity).
+        """
+        cfg = self.config
+        s_dbm = mean_rx_dbm(cfg, self.road, pos_m[:, None, :], self.rx_pos_m, self._los_at(pos_m), self.shadow_db)
+        s_mw = db_to_linear(s_dbm)
+        noise_mw = float(db_to_linear(noise_power_dbm(cfg.radio.noise_dbm, cfg.radio.noise_figure_db)))
+        if cfg.link.model == "rayleigh":
+            theta = 10.0 ** (cfg.link.sinr_threshold_db / 10.0)
+            log_p = -theta * noise_mw / s_mw - np.log1p(theta * self.interferer_mw / s_mw[..., None]).sum(axis=-1)
+            p = np.exp(log_p)
+        else:
+            sinr_db = 10.0 * np.log10(s_mw / (self.interference_mw + noise_mw))
+            if cfg.link.model == "per_table":
+                p = link.load_per_curve(cfg.link.per_curve).success(sinr_db)
+            else:
+                p = link.threshold_success(sinr_db, cfg.link.sinr_threshold_db)
+        if cfg.radio.sensitivity_dbm is not None:
+            p = np.where(s_dbm < cfg.radio.sensitivity_dbm, 0.0, p)
+        return np.where(self.target, p, 0.0)
