@@ -151,6 +151,35 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.evaluate import evaluate
+
+    env_kwargs = {"preset": args.preset, "overrides": args.set or [], "max_cycles": args.max_cycles,
+                  "max_step_m": args.max_step}  # fmt: skip
+    summary = evaluate(
+        args.env,
+        args.policy,
+        args.episodes,
+        args.seed,
+        args.out,
+        env_kwargs,
+        model_path=str(args.model),
+        delta=args.delta,
+        progress=not args.quiet,
+    )
+    if args.json:
+        json.dump(summary, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(
+            f"{args.policy} on {args.env}, {summary['episodes']} episodes x {summary['movers_per_episode']} movers: "
+            f"utility gain {summary['mean_utility_gain']:+.1%}, PRR gain {summary['mean_prr_gain']:+.1%}, "
+            f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
+            f"return {summary['mean_return']:.1f}"
+        )
+    return 0
+
+
 def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
@@ -226,6 +255,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_gbmu)
+
+    p = sub.add_parser("evaluate", help="evaluate a mover policy on the env (same episodes for the same seed)")
+    p.add_argument("--env", default="cv2x/SingleMover-v0", choices=["cv2x/SingleMover-v0", "cv2x/Mobility-v0"])
+    p.add_argument("--policy", default="gbmu", help="static | random | gbmu | greedy | oracle | ppo:PATH")
+    p.add_argument("--episodes", type=int, default=144)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--preset", default="paper", choices=sorted(PRESETS))
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
+    p.add_argument("--max-cycles", type=int, default=100, help="steps per episode")
+    p.add_argument("--max-step", type=float, default=5.0, help="offset of a full action (m)")
+    p.add_argument("--model", type=Path, default=Path("paper-table2"), help="two-distance model for gbmu/greedy")
+    p.add_argument("--delta", type=float, default=100.0, help="GBMU/greedy/oracle step size per env step")
+    p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)

@@ -167,6 +167,8 @@ class Simulator:
         self.n_reselections = 0
         self.n_expiries = 0
         self.n_keeps = 0
+        self.offsets_m = np.zeros((self.n, 2))
+        self.last_links: tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]] | None = None
         self._ready = True
         warm = cfg.sim.warmup_subframes if warmup_subframes is None else warmup_subframes
         if warm:
@@ -217,6 +219,19 @@ class Simulator:
         if not self._ready:
             raise RuntimeError("call Simulator.reset(seed) before run() or snapshot()")
 
+    def set_offsets(self, offsets_m: FloatArray) -> None:
+        """Displace vehicles from their road positions by ``offsets_m`` [N, 2] (the env's traffic mode).
+
+        Takes effect from the next period that has not started (the current period's geometry is
+        recomputed if nothing of it has been simulated yet).
+        """
+        offsets_m = np.asarray(offsets_m, dtype=np.float64)
+        if offsets_m.shape != (self.n, 2) or not np.all(np.isfinite(offsets_m)):
+            raise ValueError(f"offsets_m must be a finite [{self.n}, 2] array")
+        self.offsets_m = offsets_m.copy()
+        if self.subframe % self.rri == 0:
+            self._geometry = None
+
     # --------------------------------------------------------------- geometry
     def displacement_m(self, pos_from: FloatArray, pos_to: FloatArray) -> FloatArray:
         """[..., 2] displacement ``pos_to - pos_from`` (minimum image when distances wrap)."""
@@ -264,7 +279,7 @@ class Simulator:
         if self._geometry is not None:
             return self._geometry
         cfg = self.config
-        pos = mobility.positions_m(self.road, self.state)
+        pos = mobility.positions_m(self.road, self.state) + self.offsets_m
         i, j = self._pairs(pos)
         disp = self.displacement_m(pos[i], pos[j])
         dist = np.hypot(disp[:, 0], disp[:, 1])
@@ -397,6 +412,7 @@ class Simulator:
         cause[below] = CAUSE_CODE["sensitivity"]
         cause[hd] = CAUSE_CODE["half_duplex"]
 
+        self.last_links = (tx, rx, p, cause)
         # sensing: S-RSSI of every resource heard in this chunk, SCI RSRP of every decodable SCI
         self._period_rssi += total
         sci = ~fail

@@ -1,0 +1,36 @@
+"""PettingZoo environment for controlled mobility (``cv2x_mobility_v0``) and its factories.
+
+    parallel_env(**kw)  the ParallelEnv (:class:`MobilityEnv`)
+    raw_env(**kw)       its AEC version (``parallel_to_aec_wrapper``), unwrapped
+    env(**kw)           the AEC version with PettingZoo's standard wrapper (order enforcing)
+
+``import cv2x_marl`` registers ``cv2x/Mobility-v0`` (``pettingzoo.make("parallel", ...)`` and
+``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium env ``cv2x/SingleMover-v0``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
+
+from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.observation import ObservationLayout
+
+
+def parallel_env(**kwargs: Any) -> MobilityEnv:
+    """The ParallelEnv; keyword arguments as :class:`MobilityEnv`."""
+    return MobilityEnv(**kwargs)
+
+
+def raw_env(**kwargs: Any) -> Any:
+    """AEC version without wrappers."""
+    return parallel_to_aec_wrapper(MobilityEnv(**kwargs))
+
+
+def env(**kwargs: Any) -> Any:
+    """AEC version with the order-enforcing wrapper (what ``parallel_to_aec`` returns)."""
+    return parallel_to_aec(MobilityEnv(**kwargs))
+
+
+__all__ = ["MobilityEnv", "ObservationLayout", "env", "parallel_env", "raw_env"]

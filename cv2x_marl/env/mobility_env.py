@@ -1,0 +1,359 @@
+"""The controlled-mobility ParallelEnv: every vehicle an agent, an action a position offset.
+
+A thin layer over the simulator (``cv2x_marl.sim``): it holds no physics. Rewards are the eq. 12
+utility of each agent's broadcast computed with the simulator's link model
+(:class:`cv2x_marl.sim.evaluate.SnapshotLinks` in ``snapshot`` mode, the period's own link
+outcomes in ``traffic`` mode), never with the regression model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from pettingzoo import ParallelEnv
+
+from cv2x_marl.config import ScenarioConfig, apply_overrides, preset
+from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
+from cv2x_marl.sim import Simulator
+from cv2x_marl.sim.evaluate import SnapshotLinks
+from cv2x_marl.sim.metrics import CAUSE_CODE
+
+MODES = ("snapshot", "traffic")
+REWARDS = ("individual", "team", "mixed")
+
+
+def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
+    if not ok:
+        raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
+
+
+class MobilityEnv(ParallelEnv):
+    """Controlled mobility in a C-V2X Mode 4 network (PettingZoo ParallelEnv).
+
+    Args:
+        preset: scenario preset (``paper``: the paper's 21-vehicle grid; ``highway``).
+        overrides: ``section.key=value`` strings applied to the preset.
+        config: a full :class:`ScenarioConfig` (takes precedence over preset/overrides).
+        mode: ``snapshot`` (positions and SPS resources of a stage-1 snapshot; only the agents'
+            offsets move the vehicles) or ``traffic`` (vehicles drive, SPS runs one period per
+            step, agents add bounded offsets to their road positions).
+        max_cycles: steps per episode (truncation, all agents together).
+        max_step_m: offset of a full action (actions are ``Box(-1, 1, (2,))`` times this).
+        movers: indices of the vehicles whose actions move them (None: all); the others stay put.
+        reward: ``individual`` (own eq. 12 utility), ``team`` (mean over agents) or ``mixed``
+            (``local_ratio`` individual + ``1 - local_ratio`` team).
+        local_ratio: weight of the individual part in ``mixed``.
+        normalise_reward: divide each utility by the number of target receivers.
+        p_min: clip of P inside the log (eq. 12).
+        n_neighbours: other vehicles in the observation (default N - 1).
+        scale_m: length unit of the observation.
+        max_drift_m: optional bound on the distance from the start position (traffic: default 10 m).
+        roi: keep vehicles inside the region of interest (the road box).
+        truth_los: LOS state of moved links (``snapshot``, ``geometry``, ``always``).
+        render_mode: ``rgb_array``, ``human`` or None.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "name": "cv2x_mobility_v0",
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        preset: str = "paper",
+        overrides: Sequence[str] = (),
+        config: ScenarioConfig | None = None,
+        mode: str = "snapshot",
+        max_cycles: int = 100,
+        max_step_m: float = 5.0,
+        movers: Sequence[int] | None = None,
+        reward: str = "individual",
+        local_ratio: float = 0.5,
+        normalise_reward: bool = False,
+        p_min: float = 1e-3,
+        n_neighbours: int | None = None,
+        scale_m: float = 100.0,
+        max_drift_m: float | None = None,
+        roi: bool = False,
+        truth_los: str = "snapshot",
+        render_mode: str | None = None,
+    ) -> None:
+        cfg = config if config is not None else apply_overrides(_preset(preset), overrides)
+        _check("mode", mode in MODES, " | ".join(MODES), mode)
+        _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
+        _check("max_cycles", isinstance(max_cycles, int) and max_cycles >= 1, "integer >= 1", max_cycles)
+        _check("max_step_m", max_step_m > 0 and np.isfinite(max_step_m), "finite number > 0", max_step_m)
+        _check("local_ratio", 0.0 <= local_ratio <= 1.0, "[0, 1]", local_ratio)
+        _check("p_min", 0.0 < p_min < 1.0, "(0, 1)", p_min)
+        _check("scale_m", scale_m > 0, "number > 0", scale_m)
+        _check("max_drift_m", max_drift_m is None or max_drift_m > 0, "null or number > 0", max_drift_m)
+        _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
+        _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
+        _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
+        self.config = cfg
+        self.n = cfg.n_vehicles
+        if n_neighbours is None:
+            n_neighbours = self.n - 1
+        _check("n_neighbours", 1 <= n_neighbours <= self.n - 1, f"1 .. {self.n - 1}", n_neighbours)
+        if movers is not None:
+            bad = [m for m in movers if not 0 <= int(m) < self.n]
+            _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", list(movers))
+        self.mode = mode
+        self.max_cycles = max_cycles
+        self.max_step_m = float(max_step_m)
+        self.reward_kind = reward
+        self.local_ratio = local_ratio
+        self.normalise_reward = normalise_reward
+        self.p_min = p_min
+        self.max_drift_m = max_drift_m if max_drift_m is not None or mode == "snapshot" else 10.0
+        self.roi = roi
+        self.truth_los = truth_los
+        self.render_mode = render_mode
+        self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
+        self.agent_index = {a: i for i, a in enumerate(self.possible_agents)}
+        self.mover_mask = np.ones(self.n, dtype=bool)
+        if movers is not None:
+            self.mover_mask[:] = False
+            self.mover_mask[list(movers)] = True
+        box = Simulator(cfg).road.box_m
+        self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
+        self.layout = ObservationLayout(n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m)
+        clip = self.layout.obs_clip
+        self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
+        self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.state_space = spaces.Box(-clip, clip, (self.n * 6,), np.float32)
+        self.agents: list[str] = []
+        self._fig: Any = None
+
+    # ------------------------------------------------------------------ spaces
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self._obs_space
+
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._act_space
+
+    # ------------------------------------------------------------------- reset
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        if seed is None:
+            seed = int(np.random.SeedSequence().generate_state(1)[0])
+        self.seed_used = int(seed)
+        self.sim = Simulator(self.config)
+        snap = self.sim.reset(self.seed_used)
+        self.snapshot = snap
+        self.start_m = snap.positions_m.copy()
+        self.positions_m = snap.positions_m.copy()
+        self.resource = snap.slot * snap.n_subchannels + snap.subchannel
+        if self.mode == "snapshot":
+            self.links = SnapshotLinks(self.config, snap, self.truth_los)
+        self.offsets_m = np.zeros((self.n, 2))
+        self._co_resource: NDArray[np.int64] | None = None
+        self._co_table = np.zeros((self.n, 1), dtype=np.int64)
+        self.t = 0
+        self.agents = self.possible_agents[:]
+        self._live = set(self.agents)
+        self.tracks = [self.positions_m.copy()]
+        p, target = self._link_success()
+        self.p, self.target = p, target
+        self.u0 = self._utilities(p, target)
+        self.prr0 = self._prr(p, target)
+        self.u = self.u0.copy()
+        obs = self._observations()
+        infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
+        return obs, infos
+
+    # -------------------------------------------------------------------- step
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode: call reset()")
+        act = self._decode(actions)
+        clipped = np.any(np.abs(act) > 1.0, axis=1)
+        act = np.clip(act, -1.0, 1.0)
+        offsets = act * self.max_step_m * self.mover_mask[:, None]
+        if self.mode == "snapshot":
+            new = self._bound(self.positions_m + offsets)
+            applied = new - self.positions_m
+            self.positions_m = new
+        else:
+            base = self.positions_m - self.offsets_m
+            total = self.offsets_m + offsets
+            if self.max_drift_m is not None:
+                norm = np.hypot(total[:, 0], total[:, 1])
+                total *= np.minimum(1.0, self.max_drift_m / np.maximum(norm, 1e-12))[:, None]
+            applied = total - self.offsets_m
+            self.offsets_m = total
+            del base
+            self.sim.set_offsets(self.offsets_m)
+            self.sim.run(self.sim.rri, record=False)
+            self.resource = self.sim.resource.copy()
+            self.positions_m = self._traffic_positions()
+        self.t += 1
+        self.tracks.append(self.positions_m.copy())
+        p, target = self._link_success()
+        self.p, self.target = p, target
+        u = self._utilities(p, target)
+        self.u = u
+        rewards_arr = self._rewards(u, target)
+        done = self.t >= self.max_cycles
+        agents = self.agents
+        obs = self._observations()
+        rewards = dict(zip(agents, rewards_arr.tolist(), strict=True))
+        terms = dict.fromkeys(agents, False)
+        truncs = dict.fromkeys(agents, done)
+        infos = self._infos(applied, clipped)
+        if done:
+            self.agents = []
+            self._live = set()
+        if self.render_mode == "human":
+            self.render()
+        return obs, rewards, terms, truncs, infos
+
+    # ------------------------------------------------------------------ pieces
+    def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
+        if not isinstance(actions, dict):
+            raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
+        unknown = [a for a in actions if a not in self.agent_index or a not in self.agents]
+        if unknown:
+            raise KeyError(
+                f"unknown or finished agent(s) {unknown}; live agents: {self.agents[0]} .. {self.agents[-1]}"
+            )
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+        idx = [self.agent_index[a] for a in actions]
+        try:
+            arr = np.asarray(list(actions.values()), dtype=np.float64).reshape(len(idx), 2)
+        except ValueError:
+            bad = [a for a, v in actions.items() if np.size(v) != 2]
+            raise ValueError(f"action of {bad[0] if bad else '?'} must have shape (2,)") from None
+        finite = np.isfinite(arr).all(axis=1)
+        if not finite.all():
+            k = int(np.flatnonzero(~finite)[0])
+            name = list(actions)[k]
+            raise ValueError(f"action of {name} is not finite: {arr[k].tolist()}")
+        act = np.zeros((self.n, 2))
+        act[idx] = arr
+        return act
+
+    def _bound(self, pos: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.max_drift_m is not None:
+            d = pos - self.start_m
+            norm = np.hypot(d[:, 0], d[:, 1])
+            pos = self.start_m + d * np.minimum(1.0, self.max_drift_m / np.maximum(norm, 1e-12))[:, None]
+        if self.roi:
+            pos = np.clip(pos, 0.0, self.box_m)
+        return pos
+
+    def _traffic_positions(self) -> NDArray[np.float64]:
+        from cv2x_marl.sim import mobility
+
+        return mobility.positions_m(self.sim.road, self.sim.state) + self.offsets_m
+
+    def _link_success(self) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        if self.mode == "snapshot":
+            return self.links.success(self.positions_m), self.links.target
+        assert self.sim.last_links is not None
+        tx, rx, p, cause = self.sim.last_links
+        dense = np.zeros((self.n, self.n))
+        target = np.zeros((self.n, self.n), dtype=bool)
+        ok = cause != CAUSE_CODE["half_duplex"]
+        dense[tx, rx] = p
+        target[tx[ok], rx[ok]] = True
+        return dense, target
+
+    def _utilities(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+        u = np.where(target, np.log(np.maximum(p, self.p_min)), 0.0).sum(axis=1)
+        if self.normalise_reward:
+            u = u / np.maximum(target.sum(axis=1), 1)
+        return u
+
+    def _prr(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+        n = target.sum(axis=1)
+        return np.where(n > 0, np.where(target, p, 0.0).sum(axis=1) / np.maximum(n, 1), 0.0)
+
+    @staticmethod
+    def _jain(p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """Jain's index of each agent's link success over its targets (0 when undefined)."""
+        x = np.where(target, p, 0.0)
+        den = target.sum(axis=1) * (x * x).sum(axis=1)
+        return np.where(den > 0, x.sum(axis=1) ** 2 / np.where(den > 0, den, 1.0), 0.0)
+
+    def _rewards(self, u: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+        if self.reward_kind == "individual":
+            return u
+        team = np.full_like(u, u.mean())
+        if self.reward_kind == "team":
+            return team
+        return self.local_ratio * u + (1.0 - self.local_ratio) * team
+
+    def _observations(self) -> dict[str, NDArray[np.float32]]:
+        drift = self.positions_m - self.start_m
+        if self._co_resource is None or not np.array_equal(self._co_resource, self.resource):
+            self._co_resource = self.resource.copy()
+            self._co_table = co_channel_table(self.resource)
+        obs = build_observations(
+            self.layout, self.positions_m, self.resource, self.target, drift, self.t / self.max_cycles, self._co_table
+        )
+        return dict(zip(self.agents, obs, strict=True))
+
+    def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
+        """Numeric infos of every live agent, built from whole arrays."""
+        cols = {
+            "utility": self.u,
+            "utility_start": self.u0,
+            "prr": self._prr(self.p, self.target),
+            "prr_start": self.prr0,
+            "jain": self._jain(self.p, self.target),
+            "offset_x_m": applied[:, 0],
+            "offset_y_m": applied[:, 1],
+            "clipped": clipped.astype(np.float64),
+        }
+        keys = list(cols)
+        rows = zip(*(cols[k].tolist() for k in keys), strict=True)
+        return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, rows, strict=True)
+                if a in self._live}  # fmt: skip
+
+    # ----------------------------------------------------------- state / draw
+    def state(self) -> NDArray[np.float32]:
+        """Global state for centralised critics: positions, drifts, slot and subchannel of every vehicle."""
+        region = self.layout.region_m
+        slot = self.resource // self.config.sps.n_subchannels
+        sub = self.resource % self.config.sps.n_subchannels
+        s = np.concatenate(
+            [
+                (self.positions_m / region).ravel(),
+                ((self.positions_m - self.start_m) / self.layout.scale_m).ravel(),
+                slot / self.config.traffic.rri_ms,
+                sub / self.config.sps.n_subchannels,
+            ]
+        )
+        return np.clip(s, -self.layout.obs_clip, self.layout.obs_clip).astype(np.float32)
+
+    def render(self) -> NDArray[np.uint8] | None:
+        if self.render_mode is None:
+            return None
+        from cv2x_marl.env.render import draw
+
+        img = draw(self)
+        if self.render_mode == "human":
+            from cv2x_marl.env.render import show
+
+            self._fig = show(img, self._fig)
+            return None
+        return img
+
+    def close(self) -> None:
+        if self._fig is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._fig)
+            self._fig = None
+
+
+def _preset(name: str) -> ScenarioConfig:
+    return preset(name)

@@ -1,0 +1,170 @@
+"""`cv2x-marl evaluate`: one evaluation loop for every policy, the same episodes for the same seed.
+
+Episode k of seed S resets the env with ``derive_seeds(S, episodes)[k]``, which are also the
+snapshots of ``cv2x-marl gbmu --case realizations --seed S``, so the env results and the GBMU
+study are directly comparable.
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
+from cv2x_marl.rng import derive_seeds
+
+ENV_IDS = ("cv2x/Mobility-v0", "cv2x/SingleMover-v0")
+
+
+def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
+    """The parallel env behind either registered id (SingleMover: only vehicle 0 moves)."""
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
+    if env_id == "cv2x/SingleMover-v0":
+        kwargs = {**kwargs, "movers": [0]}
+    return MobilityEnv(**kwargs)
+
+
+def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", delta: float = 100.0) -> Policy:
+    """``static | random | gbmu | greedy | oracle | ppo:PATH``."""
+    from cv2x_marl.experiments.dataset import load_model
+    from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+
+    if spec == "static":
+        return StaticPolicy()
+    if spec == "random":
+        return RandomPolicy()
+    if spec in ("gbmu", "greedy"):
+        model = load_model(Path(model_path))
+        return GbmuPolicy(model, env.layout, env.max_step_m, delta=delta, fairness=spec == "gbmu")
+    if spec == "oracle":
+        return OraclePolicy(env, delta=delta)
+    if spec.startswith("ppo:"):
+        return PpoPolicy(Path(spec[4:]))
+    raise ValueError(f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, ppo:PATH")
+
+
+class PpoPolicy:
+    """A stable-baselines3 PPO model (shared across agents) acting deterministically."""
+
+    name = "ppo"
+
+    def __init__(self, path: Path) -> None:
+        if not path.exists():
+            raise ValueError(f"PPO model file {path} does not exist")
+        from stable_baselines3 import PPO
+
+        try:
+            self.model = PPO.load(str(path), device="cpu")
+        except Exception as exc:  # any load failure is reported with the file name
+            raise ValueError(f"cannot load PPO model {path}: {exc}") from exc
+
+    def reset(self, seed: int | None = None) -> None:
+        return None
+
+    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        agents = list(observations)
+        obs = np.stack([observations[a] for a in agents])
+        act, _ = self.model.predict(obs, deterministic=True)
+        return dict(zip(agents, np.asarray(act, dtype=np.float32), strict=True))
+
+
+def evaluate(
+    env_id: str,
+    policy_spec: str,
+    episodes: int,
+    seed: int,
+    out_dir: Path | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    model_path: str = "paper-table2",
+    delta: float = 100.0,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns."""
+    from tqdm import tqdm
+
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    env = make_eval_env(env_id, **(env_kwargs or {}))
+    policy = make_policy(policy_spec, env, model_path, delta)
+    movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
+    zero = np.zeros(2, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    steps = 0
+    for ep, ep_seed in enumerate(tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr,
+                                      disable=not progress)):  # fmt: skip
+        obs, infos = env.reset(seed=ep_seed)
+        policy.reset(ep_seed)
+        returns = dict.fromkeys(movers, 0.0)
+        last = infos
+        while env.agents:
+            acts = policy.act({a: obs[a] for a in movers})
+            full = {a: acts.get(a, zero) for a in env.agents}
+            obs, rew, _, _, last = env.step(full)
+            steps += 1
+            for a in movers:
+                returns[a] += rew[a]
+        for a in movers:
+            info = last[a]
+            rows.append(
+                {
+                    "episode": ep,
+                    "seed": ep_seed,
+                    "agent": a,
+                    "utility_start": info["utility_start"],
+                    "utility_end": info["utility"],
+                    "prr_start": info["prr_start"],
+                    "prr_end": info["prr"],
+                    "jain_end": info["jain"],
+                    "return": returns[a],
+                }
+            )
+    runtime = time.perf_counter() - t0
+    u0 = np.array([r["utility_start"] for r in rows])
+    u1 = np.array([r["utility_end"] for r in rows])
+    p0 = np.array([r["prr_start"] for r in rows])
+    p1 = np.array([r["prr_end"] for r in rows])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
+        pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
+    for r, a, b in zip(rows, ug, pg, strict=True):
+        r["utility_gain"], r["prr_gain"] = float(a), float(b)
+    summary = {
+        "env": env_id,
+        "policy": policy_spec,
+        "episodes": episodes,
+        "seed": seed,
+        "movers_per_episode": len(movers),
+        "mean_utility_gain": float(np.nanmean(ug)),
+        "mean_prr_gain": float(np.nanmean(pg)),
+        "effectiveness": float(np.mean(ug > 1e-9)),
+        "n_prr_drop": int(np.sum(pg < -1e-9)),
+        "jain_fairness": float(np.mean([r["jain_end"] for r in rows])),
+        "mean_return": float(np.mean([r["return"] for r in rows])),
+        "mean_prr_start": float(np.mean(p0)),
+        "mean_prr_end": float(np.mean(p1)),
+        "max_cycles": env.max_cycles,
+        "max_step_m": env.max_step_m,
+        "runtime_s": runtime,
+        "env_steps": steps,
+    }
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+
+        def write(tmp: Path) -> None:
+            with tmp.open("w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
+
+        atomic_write(out_dir / "episodes.csv", write)
+        write_json(out_dir / "summary.json", summary)
+    return summary
