@@ -30,6 +30,7 @@ bench: install
 	$(BIN)/python benchmarks/bench_sim.py
 	$(BIN)/python benchmarks/bench_regression.py
 	$(BIN)/python benchmarks/bench_gbmu.py
+	$(BIN)/python benchmarks/bench_env.py
 
 docs: install
 	$(BIN)/cv2x-marl config --markdown > docs/config.md
