@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 run: install
-	$(BIN)/cv2x-marl simulate --preset paper --seed 0 --out results/simulate-paper
+	$(BIN)/cv2x-marl reproduce --quick --out results
 
 lint: install
 	$(BIN)/ruff check cv2x_marl tests benchmarks

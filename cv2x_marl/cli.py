@@ -20,6 +20,7 @@ from cv2x_marl.config import (
 )
 from cv2x_marl.experiments.dataset import DatasetError
 from cv2x_marl.regression import FitError, ModelError
+from cv2x_marl.rl.errors import TrainError
 
 
 def _scenario(args: argparse.Namespace) -> ScenarioConfig:
@@ -154,8 +155,12 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments.evaluate import evaluate
 
-    env_kwargs = {"preset": args.preset, "overrides": args.set or [], "max_cycles": args.max_cycles,
-                  "max_step_m": args.max_step}  # fmt: skip
+    env_kwargs = {
+        "preset": args.preset,
+        "overrides": args.set or [],
+        "max_cycles": args.max_cycles,
+        "max_step_m": args.max_step,
+    }
     summary = evaluate(
         args.env,
         args.policy,
@@ -177,6 +182,35 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
             f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
             f"return {summary['mean_return']:.1f}"
         )
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from cv2x_marl.rl.train import load_train_config, train
+
+    if args.algo != "ppo":
+        raise TrainError(f"--algo {args.algo!r} is not available; algorithms: ppo")
+    cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
+    record = train(cfg, args.timesteps, args.seed, args.out, resume=args.resume, progress=not args.quiet)
+    if args.json:
+        json.dump(record, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        fe = record["final_eval"]
+        print(
+            f"trained {record['timesteps']} steps in {record['wall_s']:.1f} s ({record['steps_per_s']:.0f} steps/s); "
+            f"eval: utility gain {fe['mean_utility_gain']:+.1%}, effectiveness {fe['effectiveness']:.1%}, "
+            f"PRR gain {fe['mean_prr_gain']:+.1%}"
+        )
+        print(f"wrote {args.out / 'model.zip'}, record.json, eval.csv, checkpoints/, tb/")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.reproduce import reproduce
+
+    report = reproduce(args.out, quick=args.quick, seed=args.seed, models_dir=args.models, progress=not args.quiet)
+    print(f"wrote {args.out / 'REPORT.md'} and report.json ({report['runtime_s']:.0f} s)")
     return 0
 
 
@@ -272,6 +306,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
 
+    p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
+    p.add_argument("--env", default=None, choices=["cv2x/SingleMover-v0", "cv2x/Mobility-v0"])
+    p.add_argument("--algo", default="ppo")
+    p.add_argument("--timesteps", type=int, default=200_000, help="total agent-steps")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--copies", type=int, default=None, help="env copies (each mover of each copy is a sub-env)")
+    p.add_argument("--config", type=Path, help="YAML/JSON: env_id, copies, env, ppo, checkpoint_every, eval_*")
+    p.add_argument("--out", type=Path, required=True, help="run folder")
+    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("reproduce", help="dataset, fit, GBMU study, movers vs baselines, REPORT.md")
+    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--quick", action="store_true", help="smaller settings: about a minute on 2 cores")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_reproduce)
+
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)
     p.add_argument("--markdown", action="store_true", help="print docs/config.md (every key, unit, default, range)")
@@ -288,7 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"cv2x-marl: configuration error: {exc}", file=sys.stderr)
         return 2
-    except (DatasetError, FitError, ModelError) as exc:
+    except (DatasetError, FitError, ModelError, TrainError, ValueError) as exc:
         print(f"cv2x-marl: error: {exc}", file=sys.stderr)
         return 2
 

@@ -185,3 +185,45 @@ def plot_realization_gains(runs: dict[str, Any], path: str | Path) -> Path:
     axes[1].set_xlabel("realisation (sorted by GBMU utility gain)")
     axes[0].set_title(f"Gains at convergence over {order.size} realisations (Fig. 9 and 10)")
     return _save(fig, path)
+
+
+def plot_method_comparison(table: list[dict[str, Any]], path: str | Path, title: str) -> Path:
+    """Mean utility gain, effectiveness and PRR gain per method; error bars = spread over seeds."""
+    import numpy as np
+
+    names = [r["method"] for r in table]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), constrained_layout=True)
+    for ax, key, label in (
+        (axes[0], "mean_utility_gain", "mean utility gain (eq. 17), %"),
+        (axes[1], "effectiveness", "effectiveness (utility up), %"),
+        (axes[2], "mean_prr_gain", "mean PRR gain, %"),
+    ):
+        vals = np.array([100 * r[key] for r in table])
+        err = np.array([100 * r.get(key + "_std", 0.0) for r in table])
+        colors = ["#e15759" if n.startswith("ppo") else "#4e79a7" for n in names]
+        ax.bar(range(len(names)), vals, yerr=err, color=colors, capsize=4)
+        ax.set_xticks(range(len(names)))
+        ax.set_xticklabels(names, rotation=30, ha="right")
+        ax.set_ylabel(label)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | Path, title: str) -> Path:
+    """PPO's evaluation utility gain during training (one line per seed) against GBMU's."""
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    gbmu = None
+    for name, rows in sorted(curves.items()):
+        t = [r["timesteps"] for r in rows]
+        ax.plot(t, [100 * r["ppo_mean_utility_gain"] for r in rows], "-o", ms=3, lw=1.2, label=name)
+        gbmu = rows[0]["gbmu_mean_utility_gain"]
+    if gbmu is not None:
+        ax.axhline(100 * gbmu, color="k", ls="--", lw=1.2, label="GBMU (same evaluation episodes)")
+    ax.set_xlabel("training agent-steps")
+    ax.set_ylabel("evaluation utility gain (eq. 17), %")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title(title)
+    return _save(fig, path)

@@ -13,9 +13,22 @@ from cv2x_marl.sim import LINK_COLUMNS
 def test_simulate_writes_outputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
     rc = main(
-        ["simulate", "--preset", "paper", "--seed", "3", "--subframes", "1500", "--out", str(out), "--json", "--quiet",
-         "--set", "sim.warmup_subframes=200"]
-    )  # fmt: skip
+        [
+            "simulate",
+            "--preset",
+            "paper",
+            "--seed",
+            "3",
+            "--subframes",
+            "1500",
+            "--out",
+            str(out),
+            "--json",
+            "--quiet",
+            "--set",
+            "sim.warmup_subframes=200",
+        ]
+    )
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
     for key in ("prr_mean", "prr_vs_distance", "loss_causes", "n_transmissions", "runtime_s", "config"):

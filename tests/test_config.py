@@ -15,13 +15,33 @@ from cv2x_marl.config import (
 )
 
 REQUIRED_KEYS = [
-    "road.kind", "road.length_m", "road.lanes_per_direction", "vehicles.n_vehicles", "vehicles.density_veh_per_m",
-    "vehicles.placement", "radio.tx_power_dbm", "radio.carrier_hz", "radio.noise_dbm", "radio.noise_figure_db",
-    "radio.sensitivity_dbm", "channel.pathloss", "channel.effective_height_m", "channel.los",
-    "channel.shadowing_std_db", "channel.fading", "traffic.rri_ms", "traffic.packet_bytes", "sps.n_subchannels",
-    "sps.selection_window_subframes", "sps.keep_probability", "sps.selection", "link.model", "link.per_curve",
-    "metrics.prr_bin_m", "metrics.interferer_range_m",
-]  # fmt: skip
+    "road.kind",
+    "road.length_m",
+    "road.lanes_per_direction",
+    "vehicles.n_vehicles",
+    "vehicles.density_veh_per_m",
+    "vehicles.placement",
+    "radio.tx_power_dbm",
+    "radio.carrier_hz",
+    "radio.noise_dbm",
+    "radio.noise_figure_db",
+    "radio.sensitivity_dbm",
+    "channel.pathloss",
+    "channel.effective_height_m",
+    "channel.los",
+    "channel.shadowing_std_db",
+    "channel.fading",
+    "traffic.rri_ms",
+    "traffic.packet_bytes",
+    "sps.n_subchannels",
+    "sps.selection_window_subframes",
+    "sps.keep_probability",
+    "sps.selection",
+    "link.model",
+    "link.per_curve",
+    "metrics.prr_bin_m",
+    "metrics.interferer_range_m",
+]
 
 
 def test_required_keys_exist() -> None:

@@ -315,8 +315,11 @@ class MobilityEnv(ParallelEnv):
         }
         keys = list(cols)
         rows = zip(*(cols[k].tolist() for k in keys), strict=True)
-        return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, rows, strict=True)
-                if a in self._live}  # fmt: skip
+        return {
+            a: dict(zip(keys, row, strict=True))
+            for a, row in zip(self.possible_agents, rows, strict=True)
+            if a in self._live
+        }
 
     # ----------------------------------------------------------- state / draw
     def state(self) -> NDArray[np.float32]:

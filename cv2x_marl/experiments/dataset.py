@@ -192,9 +192,15 @@ def _table2_md(model: TwoDistanceModel) -> str:
         lines.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in vals) + " |")
     fb = [s["nsv"] for s in model.stats if s.get("fallback_from") is not None]
     if fb:
-        lines += ["", "Fallback (too few samples, coefficients borrowed): " + ", ".join(
-            f"NSV {s['nsv']} from NSV {s['fallback_from']}" for s in model.stats if s.get("fallback_from") is not None
-        )]  # fmt: skip
+        lines += [
+            "",
+            "Fallback (too few samples, coefficients borrowed): "
+            + ", ".join(
+                f"NSV {s['nsv']} from NSV {s['fallback_from']}"
+                for s in model.stats
+                if s.get("fallback_from") is not None
+            ),
+        ]
     return "\n".join(lines) + "\n"
 
 

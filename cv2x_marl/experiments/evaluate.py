@@ -47,24 +47,41 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", d
     if spec == "oracle":
         return OraclePolicy(env, delta=delta)
     if spec.startswith("ppo:"):
-        return PpoPolicy(Path(spec[4:]))
+        return PpoPolicy(Path(spec[4:]), env)
     raise ValueError(f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, ppo:PATH")
 
 
 class PpoPolicy:
-    """A stable-baselines3 PPO model (shared across agents) acting deterministically."""
+    """A stable-baselines3 PPO model (shared across agents) acting deterministically.
+
+    Args:
+        path: the ``.zip`` written by ``cv2x-marl train`` (or any SB3 PPO save).
+        env: the env it will act in; its observation and action spaces must match the model's.
+    """
 
     name = "ppo"
 
-    def __init__(self, path: Path) -> None:
-        if not path.exists():
-            raise ValueError(f"PPO model file {path} does not exist")
-        from stable_baselines3 import PPO
+    def __init__(self, path: Path | Any, env: MobilityEnv | None = None) -> None:
+        if not isinstance(path, str | Path):  # an already loaded model
+            self.model = path
+        else:
+            path = Path(path)
+            if not path.exists():
+                raise ValueError(f"PPO model file {path} does not exist")
+            from stable_baselines3 import PPO
 
-        try:
-            self.model = PPO.load(str(path), device="cpu")
-        except Exception as exc:  # any load failure is reported with the file name
-            raise ValueError(f"cannot load PPO model {path}: {exc}") from exc
+            try:
+                self.model = PPO.load(str(path), device="cpu")
+            except Exception as exc:  # any load failure is reported with the file name
+                raise ValueError(f"cannot load PPO model {path}: {type(exc).__name__}: {exc}") from exc
+        if env is not None:
+            want = env.observation_space(env.possible_agents[0]).shape
+            got = self.model.observation_space.shape
+            if want != got:
+                raise ValueError(
+                    f"PPO model {path} expects observations of shape {got}, the env gives {want} "
+                    "(another vehicle count or n_neighbours?)"
+                )
 
     def reset(self, seed: int | None = None) -> None:
         return None
@@ -78,7 +95,7 @@ class PpoPolicy:
 
 def evaluate(
     env_id: str,
-    policy_spec: str,
+    policy_spec: str | Policy,
     episodes: int,
     seed: int,
     out_dir: Path | None = None,
@@ -93,14 +110,19 @@ def evaluate(
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
     env = make_eval_env(env_id, **(env_kwargs or {}))
-    policy = make_policy(policy_spec, env, model_path, delta)
+    if isinstance(policy_spec, str):
+        policy = make_policy(policy_spec, env, model_path, delta)
+    else:
+        policy = policy_spec
+        policy_spec = policy.name
     movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
     zero = np.zeros(2, dtype=np.float32)
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     steps = 0
-    for ep, ep_seed in enumerate(tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr,
-                                      disable=not progress)):  # fmt: skip
+    for ep, ep_seed in enumerate(
+        tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+    ):
         obs, infos = env.reset(seed=ep_seed)
         policy.reset(ep_seed)
         returns = dict.fromkeys(movers, 0.0)

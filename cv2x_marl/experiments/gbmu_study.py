@@ -184,10 +184,25 @@ def _snapshots(cfg: ScenarioConfig, seeds: Sequence[int], progress: bool) -> lis
 
 def _write_csv(path: Path, runs: dict[str, MethodRun], seeds: Sequence[int]) -> None:
     header = [
-        "realization", "seed", "method", "utility_before", "utility_after", "utility_gain", "prr_before",
-        "prr_after", "prr_gain", "jain_before", "jain_after", "iterations", "converged", "moved_m",
-        "x0_m", "y0_m", "x_m", "y_m",
-    ]  # fmt: skip
+        "realization",
+        "seed",
+        "method",
+        "utility_before",
+        "utility_after",
+        "utility_gain",
+        "prr_before",
+        "prr_after",
+        "prr_gain",
+        "jain_before",
+        "jain_after",
+        "iterations",
+        "converged",
+        "moved_m",
+        "x0_m",
+        "y0_m",
+        "x_m",
+        "y_m",
+    ]
 
     def write(tmp: Path) -> None:
         with tmp.open("w", newline="") as fh:
@@ -197,11 +212,27 @@ def _write_csv(path: Path, runs: dict[str, MethodRun], seeds: Sequence[int]) -> 
                 start = r.climb.trajectory_m[0]
                 for b in range(r.u0.shape[0]):
                     w.writerow(
-                        [b, seeds[b], name, r.u0[b], r.u_final[b], r.utility_gain[b], r.prr0[b], r.prr_final[b],
-                         r.prr_gain[b], r.jain0[b], r.jain_final[b], int(r.climb.iterations[b]),
-                         bool(r.climb.converged[b]), float(np.hypot(*(r.climb.final_m[b] - start[b]))),
-                         start[b, 0], start[b, 1], r.climb.final_m[b, 0], r.climb.final_m[b, 1]]
-                    )  # fmt: skip
+                        [
+                            b,
+                            seeds[b],
+                            name,
+                            r.u0[b],
+                            r.u_final[b],
+                            r.utility_gain[b],
+                            r.prr0[b],
+                            r.prr_final[b],
+                            r.prr_gain[b],
+                            r.jain0[b],
+                            r.jain_final[b],
+                            int(r.climb.iterations[b]),
+                            bool(r.climb.converged[b]),
+                            float(np.hypot(*(r.climb.final_m[b] - start[b]))),
+                            start[b, 0],
+                            start[b, 1],
+                            r.climb.final_m[b, 0],
+                            r.climb.final_m[b, 1],
+                        ]
+                    )
 
     atomic_write(path, write)
 

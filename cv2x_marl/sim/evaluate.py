@@ -31,8 +31,14 @@ FloatArray = NDArray[np.float64]
 TRUTH_LOS = ("snapshot", "geometry", "always")
 
 
-def mean_rx_dbm(config: ScenarioConfig, road: Road, pos_tx: FloatArray, pos_rx: FloatArray, los: NDArray[np.bool_],
-                shadow_db: FloatArray) -> FloatArray:  # fmt: skip
+def mean_rx_dbm(
+    config: ScenarioConfig,
+    road: Road,
+    pos_tx: FloatArray,
+    pos_rx: FloatArray,
+    los: NDArray[np.bool_],
+    shadow_db: FloatArray,
+) -> FloatArray:
     """Mean received power (dBm) for transmitter/receiver positions ``[..., 2]`` (broadcast)."""
     disp = np.asarray(pos_rx - pos_tx, dtype=np.float64)
     if config.road.wrap_distances:

@@ -1,0 +1,195 @@
+"""`cv2x-marl reproduce`: the whole story in one command (what `make run` runs).
+
+stage-1 dataset -> stage-2 fit (Tables 2-3) -> GBMU study (Fig. 9-10) -> evaluation of the
+shipped PPO movers against static, random, GBMU, greedy and the oracle on the same held-out
+episodes of both envs -> ``REPORT.md`` with the figures, and ``report.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cv2x_marl.config import preset
+from cv2x_marl.io import write_json
+
+SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle")
+ENVS = {"single": "cv2x/SingleMover-v0", "multi": "cv2x/Mobility-v0"}
+KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "n_prr_drop")
+
+
+def shipped_models(models_dir: Path, kind: str) -> list[Path]:
+    """``agents/models/<kind>_seed*/model.zip``, sorted by seed."""
+    return sorted(models_dir.glob(f"{kind}_seed*/model.zip"), key=lambda p: int(p.parent.name.split("seed")[1]))
+
+
+def _row(method: str, results: list[dict[str, Any]]) -> dict[str, Any]:
+    row: dict[str, Any] = {"method": method, "n_seeds": len(results)}
+    for k in KEYS:
+        vals = np.array([r[k] for r in results], dtype=float)
+        row[k] = float(vals.mean())
+        row[k + "_std"] = float(vals.std(ddof=1)) if vals.size > 1 else 0.0
+    return row
+
+
+def reproduce(
+    out: Path, quick: bool = False, seed: int = 0, models_dir: Path = Path("agents/models"), progress: bool = True
+) -> dict[str, Any]:
+    """Run every stage; return the report's data."""
+    from cv2x_marl import plotting
+    from cv2x_marl.experiments.dataset import build_dataset, load_model, run_fit
+    from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.experiments.gbmu_study import run_study
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    settings = {
+        "runs": 4 if quick else 10,
+        "realizations": 48 if quick else 144,
+        "iterations": 2000 if quick else 10_000,
+        "episodes_single": 48 if quick else 144,
+        "episodes_multi": 12 if quick else 144,
+    }
+    log = (lambda msg: print(msg, file=sys.stderr)) if progress else (lambda msg: None)
+    cfg = preset("paper")
+    log(f"[1/4] stage-1 dataset: {settings['runs']} paper runs")
+    build_dataset(cfg, settings["runs"], seed, out / "dataset", progress=False)
+    log("[2/4] stage-2 fit (linear eq. 15, compared with logistic)")
+    fit = run_fit(out / "dataset", out / "dataset" / "model-linear.json", compare=True)
+    log(f"[3/4] GBMU study: {settings['realizations']} realisations x {settings['iterations']} iterations")
+    study = {}
+    for name, model_path in (("paper-table2", "paper-table2"), ("ours", str(out / "dataset" / "model-linear.json"))):
+        study[name] = run_study(
+            "realizations",
+            cfg,
+            load_model(Path(model_path)),
+            out / f"gbmu-{name}",
+            seed=seed,
+            realizations=settings["realizations"],
+            iterations=settings["iterations"],
+            progress=False,
+        )
+    log("[4/4] movers on the env: scripted policies and the shipped PPO models")
+    tables: dict[str, list[dict[str, Any]]] = {}
+    for kind, env_id in ENVS.items():
+        episodes = settings[f"episodes_{kind}"]
+        rows = []
+        for method in SCRIPTED:
+            res = evaluate(env_id, method, episodes, seed, out / f"eval-{kind}-{method}", progress=False)
+            rows.append(_row(method, [res]))
+            log(f"  {kind} {method}: utility gain {res['mean_utility_gain']:+.1%}")
+        ppo_models = shipped_models(models_dir, kind)
+        if ppo_models:
+            per_seed = [
+                evaluate(env_id, f"ppo:{m}", episodes, seed, out / f"eval-{kind}-ppo-{m.parent.name}", progress=False)
+                for m in ppo_models
+            ]
+            rows.append(_row(f"ppo ({len(ppo_models)} seeds)", per_seed))
+            log(f"  {kind} ppo: utility gain {rows[-1]['mean_utility_gain']:+.1%} over {len(ppo_models)} seeds")
+        tables[kind] = rows
+        plotting.plot_method_comparison(
+            rows, out / f"comparison-{kind}.png", f"{env_id}: {episodes} held-out episodes (seed {seed})"
+        )
+        curves = {}
+        for m in ppo_models:
+            csv_path = m.parent / "eval.csv"
+            if csv_path.exists():
+                lines = csv_path.read_text().splitlines()
+                head = lines[0].split(",")
+                curves[m.parent.name] = [dict(zip(head, map(float, ln.split(",")), strict=True)) for ln in lines[1:]]
+        if curves:
+            plotting.plot_learning_curves(curves, out / f"learning-{kind}.png", f"PPO training on {env_id}")
+    report = {
+        "quick": quick,
+        "seed": seed,
+        "settings": settings,
+        "fit": {"per_nsv": fit["per_nsv"], "comparison": fit.get("comparison")},
+        "gbmu_study": {k: {m: v["methods"][m] for m in v["methods"]} for k, v in study.items()},
+        "movers": tables,
+        "runtime_s": time.perf_counter() - t0,
+    }
+    write_json(out / "report.json", report)
+    (out / "REPORT.md").write_text(_markdown(report))
+    log(f"done in {report['runtime_s']:.0f} s: {out / 'REPORT.md'}")
+    return report
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:+.1f} %"
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    s = r["settings"]
+    lines = [
+        "# cv2x_marl report",
+        "",
+        f"Produced by `cv2x-marl reproduce{' --quick' if r['quick'] else ''} --seed {r['seed']}` "
+        f"in {r['runtime_s']:.0f} s.",
+        "",
+        f"## Stage 2: two-distance model ({s['runs']} paper runs)",
+        "",
+        "| NSV | alpha | beta | gamma | R^2 train | R^2 held out | instances |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in r["fit"]["per_nsv"]:
+        fb = f" (from NSV {row['fallback_from']})" if row.get("fallback_from") is not None else ""
+        lines.append(
+            f"| {row['nsv']} | {row['alpha']:.2f} | {row['beta']:.2f} | {row['gamma']:.2f} | {row['r2']:.2f} | "
+            f"{row['r2_test']:.2f} | {row['instances']}{fb} |"
+        )
+    if r["fit"]["comparison"]:
+        lines += ["", "| model | R^2 held out | Brier | log-loss |", "|---|---:|---:|---:|"]
+        for k, v in r["fit"]["comparison"].items():
+            lines.append(f"| {k} | {v['r2']:.3f} | {v['brier']:.4f} | {v['log_loss']:.4f} |")
+    lines += [
+        "",
+        "Figures: `dataset/fig2_surface.png`, `dataset/fit_quality.png`; "
+        "tables: `dataset/table2.md`, `dataset/table3.md`.",
+        "",
+        f"## GBMU study ({s['realizations']} realisations, {s['iterations']} iterations, step 1)",
+        "",
+        "| model | method | effectiveness | mean utility gain | mean PRR gain | PRR drops |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for model, methods in r["gbmu_study"].items():
+        for m, v in methods.items():
+            lines.append(
+                f"| {model} | {m} | {v['effectiveness']:.1%} | {_pct(v['mean_utility_gain'])} | "
+                f"{_pct(v['mean_prr_gain'])} | {v['n_prr_drop']} |"
+            )
+    lines += ["", "Paper (Fig. 9-10): 93 %, +15 %, +5 %, 40 of 144. Figures: `gbmu-*/fig9_fig10_gains.png`."]
+    for kind, rows in r["movers"].items():
+        n_ep = s[f"episodes_{kind}"]
+        lines += [
+            "",
+            f"## Movers on `{ENVS[kind]}` ({n_ep} held-out episodes; PPO: mean +- std over training seeds)",
+            "",
+            "| method | mean utility gain | effectiveness | mean PRR gain | Jain | PRR drops |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for row in rows:
+            sd = row["n_seeds"] > 1
+
+            def cell(k: str, fmt: str, row: dict[str, Any] = row, sd: bool = sd) -> str:
+                v = format(100 * row[k], fmt) + " %" if fmt else f"{row[k]:.3f}"
+                if sd:
+                    v += " +- " + (format(100 * row[k + "_std"], ".1f") + " %" if fmt else f"{row[k + '_std']:.3f}")
+                return v
+
+            lines.append(
+                f"| {row['method']} | {cell('mean_utility_gain', '+.1f')} | {cell('effectiveness', '.1f')} | "
+                f"{cell('mean_prr_gain', '+.1f')} | {cell('jain_fairness', '')} | {row['n_prr_drop']:.1f} |"
+            )
+        lines += ["", f"Figures: `comparison-{kind}.png`, `learning-{kind}.png`."]
+    return "\n".join(lines) + "\n"
+
+
+def main_json(report: dict[str, Any]) -> str:
+    """The report as JSON text."""
+    return json.dumps(report, indent=2)

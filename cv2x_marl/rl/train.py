@@ -1,0 +1,311 @@
+"""PPO movers with parameter sharing (`cv2x-marl train`).
+
+A run folder holds ``train_config.json`` (the resolved configuration), ``checkpoints/``
+(``ppo_<steps>_steps.zip`` every ``checkpoint_every`` steps), ``tb/`` (tensorboard),
+``eval.csv`` (the learning curve: PPO and GBMU on fixed evaluation episodes), ``model.zip`` and
+``record.json`` (timesteps, wall time, throughput, final evaluation) once training ends.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.rl.errors import TrainError
+
+ENV_IDS = ("cv2x/SingleMover-v0", "cv2x/Mobility-v0")
+
+
+@dataclass(frozen=True)
+class PpoConfig:
+    """PPO hyperparameters (stable-baselines3 names)."""
+
+    learning_rate: float = 3e-4
+    n_steps: int = 64
+    batch_size: int = 512
+    n_epochs: int = 10
+    gamma: float = 0.95
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    net_arch: tuple[int, ...] = (128, 128)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a run needs besides timesteps and seed."""
+
+    env_id: str = "cv2x/SingleMover-v0"
+    copies: int = 8
+    env: dict[str, Any] = field(
+        default_factory=lambda: {"max_cycles": 100, "max_step_m": 5.0, "normalise_reward": True}
+    )
+    ppo: PpoConfig = field(default_factory=PpoConfig)
+    checkpoint_every: int = 50_000
+    eval_every: int = 50_000
+    eval_episodes: int = 16
+    eval_seed: int = 10_000
+
+    def __post_init__(self) -> None:
+        if self.env_id not in ENV_IDS:
+            raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
+        for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
+            if getattr(self, name) < 1:
+                raise TrainError(f"train.{name} must be >= 1, got {getattr(self, name)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["ppo"]["net_arch"] = list(self.ppo.net_arch)
+        return d
+
+
+def load_train_config(path: Path | None, env_id: str | None = None, copies: int | None = None) -> TrainConfig:
+    """Read a YAML/JSON file ``{env_id, copies, env: {...}, ppo: {...}, checkpoint_every, ...}``.
+
+    Unknown keys raise :class:`TrainError` naming them; CLI values override the file.
+    """
+    import yaml
+
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            text = Path(path).read_text()
+            data = (json.loads(text) if Path(path).suffix == ".json" else yaml.safe_load(text)) or {}
+        except (OSError, json.JSONDecodeError, yaml.YAMLError) as exc:
+            raise TrainError(f"cannot read training config {path}: {exc}") from exc
+        if not isinstance(data, dict):
+            raise TrainError(f"training config {path} must be a mapping")
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    bad = sorted(set(data) - known)
+    if bad:
+        raise TrainError(f"unknown training config key(s) {bad}; keys: {', '.join(sorted(known))}")
+    ppo_data = dict(data.pop("ppo", {}) or {})
+    ppo_known = {f.name for f in dataclasses.fields(PpoConfig)}
+    bad = sorted(set(ppo_data) - ppo_known)
+    if bad:
+        raise TrainError(f"unknown ppo key(s) {bad}; keys: {', '.join(sorted(ppo_known))}")
+    if "net_arch" in ppo_data:
+        ppo_data["net_arch"] = tuple(ppo_data["net_arch"])
+    defaults = TrainConfig()
+    env = {**defaults.env, **(data.pop("env", {}) or {})}
+    cfg = TrainConfig(**{**data, "env": env, "ppo": PpoConfig(**ppo_data)})
+    if env_id is not None:
+        cfg = dataclasses.replace(cfg, env_id=env_id)
+    if copies is not None:
+        cfg = dataclasses.replace(cfg, copies=copies)
+    return cfg
+
+
+def make_vec_env(cfg: TrainConfig) -> Any:
+    """The agents x copies VecEnv of a training configuration."""
+    from cv2x_marl.experiments.evaluate import make_eval_env
+    from cv2x_marl.rl.vec_env import AgentsVecEnv
+
+    return AgentsVecEnv(lambda: make_eval_env(cfg.env_id, **cfg.env), cfg.copies)
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
+    ckpts = list((Path(run_dir) / "checkpoints").glob("ppo_*_steps.zip"))
+    if not ckpts:
+        return None
+    return max(ckpts, key=lambda p: int(p.stem.split("_")[1]))
+
+
+def save_model(model: Any, path: Path) -> Path:
+    """Save an SB3 model atomically (SB3 keeps a non-empty suffix such as ``.tmp`` as given)."""
+    return atomic_write(path, lambda tmp: model.save(tmp))
+
+
+def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool) -> list[Any]:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+
+    class Checkpoint(BaseCallback):
+        """Atomic checkpoints every ``checkpoint_every`` steps (a crash never leaves a half file)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.next = (self.num_timesteps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next:
+                path = run_dir / "checkpoints" / f"ppo_{self.num_timesteps}_steps.zip"
+                save_model(self.model, path)
+                self.next += cfg.checkpoint_every
+            return True
+
+    class EvalVsGbmu(BaseCallback):
+        """Evaluate PPO (deterministic) and GBMU on the same fixed episodes; write eval.csv."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.gbmu: dict[str, Any] | None = None
+            self.next = 0
+
+        def _eval(self, policy: Any) -> dict[str, Any]:
+            return evaluate(cfg.env_id, policy, cfg.eval_episodes, cfg.eval_seed, None, cfg.env, progress=False)
+
+        def _on_training_start(self) -> None:
+            self.gbmu = self._eval("gbmu")
+            self.next = self.num_timesteps
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next:
+                self.next = self.num_timesteps + cfg.eval_every
+                res = self._eval(PpoPolicy(self.model))
+                assert self.gbmu is not None
+                row = {
+                    "timesteps": self.num_timesteps,
+                    "ppo_mean_utility_gain": res["mean_utility_gain"],
+                    "ppo_effectiveness": res["effectiveness"],
+                    "ppo_mean_prr_gain": res["mean_prr_gain"],
+                    "ppo_mean_return": res["mean_return"],
+                    "gbmu_mean_utility_gain": self.gbmu["mean_utility_gain"],
+                    "gbmu_effectiveness": self.gbmu["effectiveness"],
+                    "gbmu_mean_prr_gain": self.gbmu["mean_prr_gain"],
+                }
+                for k, v in row.items():
+                    if k != "timesteps":
+                        self.logger.record(f"eval/{k}", v)
+                path = run_dir / "eval.csv"
+                new = not path.exists()
+                with path.open("a", newline="") as fh:
+                    w = csv.DictWriter(fh, fieldnames=list(row))
+                    if new:
+                        w.writeheader()
+                    w.writerow(row)
+            return True
+
+    class Progress(BaseCallback):
+        def _on_training_start(self) -> None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(
+                total=total,
+                initial=self.num_timesteps,
+                unit="step",
+                desc="train",
+                file=sys.stderr,
+                disable=not progress,
+            )
+
+        def _on_step(self) -> bool:
+            self.bar.update(n_envs)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return [Checkpoint(), EvalVsGbmu(), Progress()]
+
+
+def train(
+    cfg: TrainConfig,
+    timesteps: int,
+    seed: int,
+    run_dir: Path,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train (or resume) a shared PPO policy; write the run folder; return the training record."""
+    import torch
+    from stable_baselines3 import PPO
+
+    if timesteps < 1:
+        raise TrainError(f"--timesteps must be >= 1, got {timesteps}")
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cfg_path = run_dir / "train_config.json"
+    resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
+    if resume:
+        if not cfg_path.exists():
+            raise TrainError(f"--resume: {run_dir} has no train_config.json (nothing to resume)")
+        old = json.loads(cfg_path.read_text())
+        if {k: v for k, v in old.items() if k != "timesteps"} != {
+            k: v for k, v in resolved.items() if k != "timesteps"
+        }:
+            raise TrainError(f"--resume: the configuration or seed differs from the one in {cfg_path}")
+    elif latest_checkpoint(run_dir) is not None or (run_dir / "model.zip").exists():
+        raise TrainError(f"{run_dir} already holds a run; use --resume or another --out")
+    write_json(cfg_path, resolved)
+    vec = make_vec_env(cfg)
+    torch.set_num_threads(1)
+    ckpt = latest_checkpoint(run_dir) if resume else None
+    if ckpt is not None:
+        model = PPO.load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
+        model.set_random_seed(seed + model.num_timesteps)
+    else:
+        p = cfg.ppo
+        model = PPO(
+            "MlpPolicy",
+            vec,
+            learning_rate=p.learning_rate,
+            n_steps=p.n_steps,
+            batch_size=p.batch_size,
+            n_epochs=p.n_epochs,
+            gamma=p.gamma,
+            gae_lambda=p.gae_lambda,
+            clip_range=p.clip_range,
+            ent_coef=p.ent_coef,
+            vf_coef=p.vf_coef,
+            max_grad_norm=p.max_grad_norm,
+            policy_kwargs={"net_arch": list(p.net_arch)},
+            tensorboard_log=str(run_dir / "tb"),
+            seed=seed,
+            device="cpu",
+            verbose=0,
+        )
+    start = model.num_timesteps
+    remaining = max(0, timesteps - start)
+    t0 = time.perf_counter()
+    if remaining:
+        model.learn(
+            remaining,
+            callback=_callbacks(cfg, run_dir, vec.num_envs, timesteps, progress),
+            reset_num_timesteps=ckpt is None,
+            tb_log_name="ppo",
+        )
+    wall = time.perf_counter() - t0
+    save_model(model, run_dir / "model.zip")
+    from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+
+    final = evaluate(cfg.env_id, PpoPolicy(model), cfg.eval_episodes, cfg.eval_seed, None, cfg.env, progress=False)
+    record = {
+        "env_id": cfg.env_id,
+        "seed": seed,
+        "timesteps": int(model.num_timesteps),
+        "resumed_from": int(start) if ckpt is not None else None,
+        "wall_s": wall,
+        "steps_per_s": (model.num_timesteps - start) / wall if wall > 0 else float("nan"),
+        "n_sub_envs": vec.num_envs,
+        "final_eval": {
+            k: final[k] for k in ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "mean_return")
+        },
+        "torch": torch.__version__,
+    }
+    write_json(run_dir / "record.json", record)
+    vec.close()
+    return record
+
+
+def parameters_digest(model: Any) -> str:
+    """A short hash of a model's policy parameters (to compare two runs)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for _, v in sorted(model.policy.state_dict().items()):
+        h.update(np.ascontiguousarray(v.cpu().numpy()).tobytes())
+    return h.hexdigest()[:16]

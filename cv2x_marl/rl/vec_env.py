@@ -1,0 +1,126 @@
+"""An SB3 ``VecEnv`` that exposes every moving agent of K env copies as one sub-env.
+
+With parameter sharing, one policy acts for every vehicle: sub-env ``k * M + m`` is mover ``m``
+of copy ``k`` (M movers per copy). What SuperSuit's ``pettingzoo_env_to_vec_env_v1`` gets wrong
+for SB3, this adapter does explicitly:
+
+* seeding: ``VecEnv.seed(s)`` (called by ``PPO(..., seed=s)``) gives copy k the seed
+  ``s + k * M``; its episodes then draw their seeds from a generator seeded with it, so two runs
+  with one seed see identical episodes (and PPO ends with identical parameters);
+* truncation: when the episode of a copy ends by ``max_cycles``, every agent's info carries
+  ``TimeLimit.truncated = True`` (and ``terminal_observation``), so SB3 bootstraps the value of
+  the last state instead of treating the time limit as a terminal state;
+* auto-reset: the copy is reset at once and the first observation of the next episode is returned.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+from cv2x_marl.env.mobility_env import MobilityEnv
+
+
+class AgentsVecEnv(VecEnv):
+    """K copies of a :class:`MobilityEnv`, each mover of each copy a sub-env.
+
+    Args:
+        env_fn: builds one env copy.
+        n_copies: K.
+    """
+
+    def __init__(self, env_fn: Callable[[], MobilityEnv], n_copies: int) -> None:
+        if n_copies < 1:
+            raise ValueError(f"n_copies must be >= 1, got {n_copies}")
+        self.envs = [env_fn() for _ in range(n_copies)]
+        first = self.envs[0]
+        self.movers = [a for a in first.possible_agents if first.mover_mask[first.agent_index[a]]]
+        self.m = len(self.movers)
+        self.k = n_copies
+        self._zero = np.zeros(2, dtype=np.float32)
+        self._episode_rngs: list[np.random.Generator | None] = [None] * n_copies
+        self._actions: np.ndarray | None = None
+        self.render_mode = first.render_mode
+        self._obs_shape: tuple[int, ...] = tuple(first.observation_space(self.movers[0]).shape)
+        super().__init__(self.k * self.m, first.observation_space(self.movers[0]), first.action_space(self.movers[0]))
+
+    # ------------------------------------------------------------------ reset
+    def _episode_seed(self, k: int) -> int:
+        rng = self._episode_rngs[k]
+        if rng is None:
+            rng = self._episode_rngs[k] = np.random.default_rng(np.random.SeedSequence())
+        return int(rng.integers(0, 2**31 - 1))
+
+    def _reset_copy(self, k: int, seed: int | None) -> dict[str, np.ndarray]:
+        if seed is not None:
+            self._episode_rngs[k] = np.random.default_rng(seed)
+        obs, infos = self.envs[k].reset(seed=self._episode_seed(k))
+        for m, a in enumerate(self.movers):
+            self.reset_infos[k * self.m + m] = infos[a]
+        return obs
+
+    def reset(self) -> VecEnvObs:
+        out = np.empty((self.num_envs, *self._obs_shape), dtype=np.float32)
+        for k in range(self.k):
+            obs = self._reset_copy(k, self._seeds[k * self.m])
+            out[k * self.m : (k + 1) * self.m] = [obs[a] for a in self.movers]
+        self._reset_seeds()
+        self._reset_options()
+        return out
+
+    # ------------------------------------------------------------------- step
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, -1)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        assert self._actions is not None, "step_async must come first"
+        obs_out = np.empty((self.num_envs, *self._obs_shape), dtype=np.float32)
+        rewards = np.empty(self.num_envs, dtype=np.float32)
+        dones = np.zeros(self.num_envs, dtype=bool)
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for k, env in enumerate(self.envs):
+            acts = {a: self._zero for a in env.agents}
+            for m, a in enumerate(self.movers):
+                acts[a] = self._actions[k * self.m + m]
+            obs, rew, term, trunc, info = env.step(acts)
+            for m, a in enumerate(self.movers):
+                i = k * self.m + m
+                rewards[i] = rew[a]
+                infos[i] = dict(info[a])
+                obs_out[i] = obs[a]
+                done = term[a] or trunc[a]
+                dones[i] = done
+                if done:
+                    infos[i]["TimeLimit.truncated"] = bool(trunc[a] and not term[a])
+                    infos[i]["terminal_observation"] = obs[a]
+            if dones[k * self.m]:
+                new = self._reset_copy(k, None)
+                obs_out[k * self.m : (k + 1) * self.m] = [new[a] for a in self.movers]
+        return obs_out, rewards, dones, infos
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+    # ------------------------------------------------------------- attributes
+    def _copies(self, indices: VecEnvIndices) -> list[int]:
+        return [i // self.m for i in self._get_indices(indices)]
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [getattr(self.envs[k], attr_name) for k in self._copies(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        for k in set(self._copies(indices)):
+            setattr(self.envs[k], attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices: VecEnvIndices = None, **kwargs: Any) -> list[Any]:
+        return [getattr(self.envs[k], method_name)(*args, **kwargs) for k in self._copies(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [env.render() for env in self.envs]
