@@ -23,6 +23,11 @@ from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
 
+def _print_json(data: object) -> None:
+    json.dump(data, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
 def _scenario(args: argparse.Namespace) -> ScenarioConfig:
     cfg = preset(args.preset)
     if args.config:
@@ -50,8 +55,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--subframes must be >= 1, got {n}")
     summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet)
     if args.json:
-        json.dump(summary, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json(summary)
     else:
         print(
             f"PRR mean {summary['prr_mean']:.4f} (expected {summary['prr_mean_expected']:.4f}) over "
@@ -75,8 +79,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
         cfg = apply_overrides(cfg, [f"sim.n_subframes={args.subframes}"])
     manifest = build_dataset(cfg, args.runs, args.seed, args.out, args.aggregate_window_ms, progress=not args.quiet)
     if args.json:
-        json.dump({k: v for k, v in manifest.items() if k != "config"}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json({k: v for k, v in manifest.items() if k != "config"})
     else:
         print(f"{manifest['rows']} samples from {args.runs} runs in {manifest['runtime_s']:.2f} s")
         print("rows per NSV: " + ", ".join(f"{k}: {v}" for k, v in manifest["rows_per_nsv"].items()))
@@ -100,8 +103,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         figures=not args.no_figures,
     )
     if args.json:
-        json.dump(result, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json(result)
     else:
         print(f"{'NSV':>4} {'alpha':>7} {'beta':>7} {'gamma':>7} {'R2':>6} {'R2test':>7} {'instances':>9}")
         for r in result["per_nsv"]:
@@ -138,8 +140,7 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     if args.json:
-        json.dump({k: v for k, v in summary.items() if k != "config"}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json({k: v for k, v in summary.items() if k != "config"})
     else:
         print(f"case {args.case}, {summary['n_realizations']} realisation(s), model {model.kind}")
         for name, m in summary["methods"].items():
@@ -173,8 +174,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     if args.json:
-        json.dump(summary, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json(summary)
     else:
         print(
             f"{args.policy} on {args.env}, {summary['episodes']} episodes x {summary['movers_per_episode']} movers: "
@@ -193,8 +193,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
     record = train(cfg, args.timesteps, args.seed, args.out, resume=args.resume, progress=not args.quiet)
     if args.json:
-        json.dump(record, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json(record)
     else:
         fe = record["final_eval"]
         print(
@@ -218,8 +217,7 @@ def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
     else:
-        json.dump(to_dict(_scenario(args)), sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        _print_json(to_dict(_scenario(args)))
     return 0
 
 

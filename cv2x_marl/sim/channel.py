@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cv2x_marl.config import ChannelConfig
 from cv2x_marl.units import SPEED_OF_LIGHT_MPS
 
 FloatArray = NDArray[np.float64]
@@ -105,6 +106,14 @@ def winner_b1_db(
     if not np.all(los):
         pl = np.where(los, pl, winner_b1_nlos_db(dx, dy, carrier_hz, effective_height_m))
     return np.maximum(pl, free_space_db(d, carrier_hz))
+
+
+def path_loss_db(cfg: ChannelConfig, carrier_hz: float, disp_m: FloatArray, los: ArrayLike) -> FloatArray:
+    """Path loss of displacements ``[..., 2]`` with the configured model (eq. 3 or WINNER+ B1)."""
+    if cfg.pathloss == "power_law":
+        d = np.maximum(np.hypot(disp_m[..., 0], disp_m[..., 1]), cfg.min_distance_m)
+        return power_law_db(d, cfg.power_law_k_db, cfg.power_law_d0_m, cfg.power_law_exponent, carrier_hz)
+    return winner_b1_db(disp_m[..., 0], disp_m[..., 1], los, carrier_hz, cfg.effective_height_m, cfg.min_distance_m)
 
 
 class Shadowing:

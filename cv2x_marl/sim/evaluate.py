@@ -42,17 +42,9 @@ def mean_rx_dbm(
     """Mean received power (dBm) for transmitter/receiver positions ``[..., 2]`` (broadcast)."""
     disp = np.asarray(pos_rx - pos_tx, dtype=np.float64)
     if config.road.wrap_distances:
-        box = np.array(road.box_m)
-        periodic = np.array([True, config.road.kind == "grid"])
-        disp[..., periodic] -= box[periodic] * np.round(disp[..., periodic] / box[periodic])
-    ch, radio = config.channel, config.radio
-    if ch.pathloss == "power_law":
-        d = np.maximum(np.hypot(disp[..., 0], disp[..., 1]), ch.min_distance_m)
-        pl = channel.power_law_db(d, ch.power_law_k_db, ch.power_law_d0_m, ch.power_law_exponent, radio.carrier_hz)
-    else:
-        pl = channel.winner_b1_db(
-            disp[..., 0], disp[..., 1], los, radio.carrier_hz, ch.effective_height_m, ch.min_distance_m
-        )
+        road.minimum_image(disp)
+    radio = config.radio
+    pl = channel.path_loss_db(config.channel, radio.carrier_hz, disp, los)
     eirp = radio.tx_power_dbm + radio.tx_antenna_gain_dbi + radio.rx_antenna_gain_dbi
     return eirp - pl - shadow_db
 

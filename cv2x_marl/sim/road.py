@@ -66,6 +66,19 @@ class Road:
         return (self.length_m, 2.0 * self.half_width_m)
 
     @property
+    def periodic_box_m(self) -> FloatArray:
+        """[2] period of the torus per axis (inf where the area does not wrap: across the highway)."""
+        w, h = self.box_m
+        return np.array([w, h if self.kind == "grid" else np.inf])
+
+    def minimum_image(self, disp_m: FloatArray) -> FloatArray:
+        """Displacements ``[..., 2]`` folded onto the torus (the shortest way round), in place."""
+        box = self.periodic_box_m
+        periodic = np.isfinite(box)
+        disp_m[..., periodic] -= box[periodic] * np.round(disp_m[..., periodic] / box[periodic])
+        return disp_m
+
+    @property
     def n_lanes_total(self) -> int:
         """Lanes counted over every road, both directions (and both axes on the grid)."""
         axes = 2 if self.kind == "grid" else 1

@@ -139,8 +139,6 @@ class Simulator:
         self.curve = link.load_per_curve(config.link.per_curve)
         self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
-        box = self.road.box_m
-        self._box = np.array(box) if config.road.kind == "grid" else np.array([box[0], np.inf])
         iu, ju = np.triu_indices(self.n, 1)
         self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
         self._ready = False
@@ -236,18 +234,14 @@ class Simulator:
     def displacement_m(self, pos_from: FloatArray, pos_to: FloatArray) -> FloatArray:
         """[..., 2] displacement ``pos_to - pos_from`` (minimum image when distances wrap)."""
         d = pos_to - pos_from
-        if self.config.road.wrap_distances:
-            box = self._box
-            periodic = np.isfinite(box)
-            d[..., periodic] -= box[periodic] * np.round(d[..., periodic] / box[periodic])
-        return d
+        return self.road.minimum_image(d) if self.config.road.wrap_distances else d
 
     def _pairs(self, pos: FloatArray) -> tuple[IntArray, IntArray]:
         rng_m = self.config.link.max_range_m
         if rng_m is None:
             return self._all_pairs
         if self.config.road.wrap_distances:
-            box = np.where(np.isfinite(self._box), self._box, 1e12)
+            box = np.where(np.isfinite(self.road.periodic_box_m), self.road.periodic_box_m, 1e12)
             tree = cKDTree(np.mod(pos, box), boxsize=box)
         else:
             tree = cKDTree(pos)
@@ -262,17 +256,9 @@ class Simulator:
 
     def _path_loss_db(self, geo: _Geometry, h: int) -> FloatArray:
         """Path loss of the unordered pairs (first half of the ordered arrays)."""
-        ch, radio = self.config.channel, self.config.radio
         i, j = geo.rx[:h], geo.tx[:h]
-        if ch.pathloss == "power_law":
-            d = np.maximum(geo.distance_m[:h], ch.min_distance_m)
-            return channel.power_law_db(
-                d, ch.power_law_k_db, ch.power_law_d0_m, ch.power_law_exponent, radio.carrier_hz
-            )
         disp = self.displacement_m(geo.positions_m[i], geo.positions_m[j])
-        return channel.winner_b1_db(
-            disp[:, 0], disp[:, 1], geo.los[:h], radio.carrier_hz, ch.effective_height_m, ch.min_distance_m
-        )
+        return channel.path_loss_db(self.config.channel, self.config.radio.carrier_hz, disp, geo.los[:h])
 
     def _period_geometry(self) -> _Geometry:
         """Pair geometry and received powers for the current period (computed once per period)."""
@@ -291,7 +277,7 @@ class Simulator:
         vel = mobility.velocities_mps(self.state)
         rel = np.hypot(*(vel[i] - vel[j]).T)
         geo = _Geometry(pos, i, j, dist, los, np.empty(0), np.empty(0), rel)
-        pl = self._path_loss_db(geo, i.shape[0])
+        pl = channel.path_loss_db(cfg.channel, cfg.radio.carrier_hz, disp, los)
         ch = cfg.channel
         if ch.shadowing_std_db > 0 or ch.shadowing_nlos_std_db > 0:
             z = self.shadowing.sample(i, j, self.state.odometer_m)
