@@ -16,7 +16,8 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
-from cv2x_marl.config import ScenarioConfig, apply_overrides, preset
+from cv2x_marl.config import ScenarioConfig, apply_overrides
+from cv2x_marl.config import preset as load_preset
 from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.evaluate import SnapshotLinks
@@ -84,7 +85,7 @@ class MobilityEnv(ParallelEnv):
         truth_los: str = "snapshot",
         render_mode: str | None = None,
     ) -> None:
-        cfg = config if config is not None else apply_overrides(_preset(preset), overrides)
+        cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
         _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
         _check("max_cycles", isinstance(max_cycles, int) and max_cycles >= 1, "integer >= 1", max_cycles)
@@ -180,14 +181,12 @@ class MobilityEnv(ParallelEnv):
             applied = new - self.positions_m
             self.positions_m = new
         else:
-            base = self.positions_m - self.offsets_m
             total = self.offsets_m + offsets
             if self.max_drift_m is not None:
                 norm = np.hypot(total[:, 0], total[:, 1])
                 total *= np.minimum(1.0, self.max_drift_m / np.maximum(norm, 1e-12))[:, None]
             applied = total - self.offsets_m
             self.offsets_m = total
-            del base
             self.sim.set_offsets(self.offsets_m)
             self.sim.run(self.sim.rri, record=False)
             self.resource = self.sim.resource.copy()
@@ -356,7 +355,3 @@ class MobilityEnv(ParallelEnv):
 
             plt.close(self._fig)
             self._fig = None
-
-
-def _preset(name: str) -> ScenarioConfig:
-    return preset(name)

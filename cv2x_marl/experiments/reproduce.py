@@ -7,7 +7,6 @@ episodes of both envs -> ``REPORT.md`` with the figures, and ``report.json``.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -188,8 +187,3 @@ def _markdown(r: dict[str, Any]) -> str:
             )
         lines += ["", f"Figures: `comparison-{kind}.png`, `learning-{kind}.png`."]
     return "\n".join(lines) + "\n"
-
-
-def main_json(report: dict[str, Any]) -> str:
-    """The report as JSON text."""
-    return json.dumps(report, indent=2)
