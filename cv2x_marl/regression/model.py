@@ -122,23 +122,23 @@ class TwoDistanceModel:
         """
         return np.clip(self.predict_unclipped(d_m, l_m, nsv), self.p_min, 1.0)
 
-    def grad_d(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
-        """``dP/dd`` of the unclipped model (eq. 16), per metre."""
-        k = self._rows(nsv)
-        base = self.alpha[k] / (np.asarray(d_m, dtype=np.float64) * LN10)
+    def _grad(self, coef: FloatArray, x_m: ArrayLike, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """``dP/dx`` for ``x`` = d (``coef`` = alpha) or l (``coef`` = beta): ``coef / (x ln 10)`` times the
+        link function's slope (1 for linear, ``P (1 - P)`` for logistic)."""
+        base = coef[self._rows(nsv)] / (np.asarray(x_m, dtype=np.float64) * LN10)
+        shape = np.broadcast_shapes(np.shape(base), np.shape(d_m), np.shape(l_m))
         if self.kind == "linear":
-            return np.broadcast_to(base, np.broadcast_shapes(base.shape, np.shape(l_m))).astype(np.float64)
+            return np.broadcast_to(base, shape).astype(np.float64)
         p = self.predict_unclipped(d_m, l_m, nsv)
         return p * (1.0 - p) * base
 
+    def grad_d(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
+        """``dP/dd`` of the unclipped model (eq. 16), per metre."""
+        return self._grad(self.alpha, d_m, d_m, l_m, nsv)
+
     def grad_l(self, d_m: ArrayLike, l_m: ArrayLike, nsv: ArrayLike) -> FloatArray:
         """``dP/dl`` of the unclipped model, per metre."""
-        k = self._rows(nsv)
-        base = self.beta[k] / (np.asarray(l_m, dtype=np.float64) * LN10)
-        if self.kind == "linear":
-            return np.broadcast_to(base, np.broadcast_shapes(base.shape, np.shape(d_m))).astype(np.float64)
-        p = self.predict_unclipped(d_m, l_m, nsv)
-        return p * (1.0 - p) * base
+        return self._grad(self.beta, l_m, d_m, l_m, nsv)
 
     # ----------------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:

@@ -49,6 +49,18 @@ def mean_rx_dbm(
     return eirp - pl - shadow_db
 
 
+def _power_at_all(config: ScenarioConfig, road: Road, snap: Snapshot, tx: NDArray[np.int64]) -> FloatArray:
+    """[N, T] mean power of transmitters ``tx`` at every vehicle of the snapshot (0 at themselves and
+    beyond ``link.max_range_m``)."""
+    pos = snap.positions_m
+    p = db_to_linear(mean_rx_dbm(config, road, pos[tx][None], pos[:, None], snap.los[:, tx], snap.shadowing_db[:, tx]))
+    if config.link.max_range_m is not None:
+        d = np.hypot(*(pos[:, None, :] - pos[tx][None, :, :]).transpose(2, 0, 1))
+        p = np.where(d <= config.link.max_range_m, p, 0.0)
+    p[tx, np.arange(tx.size)] = 0.0  # a transmitter does not interfere with itself
+    return p
+
+
 @dataclass
 class MoverLinks:
     """Everything fixed about a mover's links in B snapshots; :meth:`success` varies its position.
@@ -114,27 +126,12 @@ class MoverLinks:
             tgt[i] = False
             target[k] = tgt
             co = np.flatnonzero((res == res[i]) & (np.arange(n) != i))
-            # mean power of each co-channel transmitter c at every receiver j: [N, C]
-            p_cj = db_to_linear(
-                mean_rx_dbm(
-                    config, road, pos[co][None, :, :], pos[:, None, :], snap.los[:, co], snap.shadowing_db[:, co]
-                )
-            )
-            if config.link.max_range_m is not None:
-                dcj = np.hypot(*(pos[:, None, :] - pos[co][None, :, :]).transpose(2, 0, 1))
-                p_cj = np.where(dcj <= config.link.max_range_m, p_cj, 0.0)
-            p_cj[co, np.arange(co.size)] = 0.0  # a transmitter does not interfere with itself
+            p_cj = _power_at_all(config, road, snap, co)  # [N, C]: co-channel transmitters at every receiver
             interf[k] = p_cj.sum(axis=1)
             terms.append(p_cj)
             if config.link.inband_emission_db is not None:  # leakage from the other subchannels of the subframe
                 oth = np.flatnonzero((snap.slot == snap.slot[i]) & (res != res[i]))
-                p_oj = db_to_linear(
-                    mean_rx_dbm(config, road, pos[oth][None], pos[:, None], snap.los[:, oth], snap.shadowing_db[:, oth])
-                )
-                if config.link.max_range_m is not None:
-                    doj = np.hypot(*(pos[:, None, :] - pos[oth][None, :, :]).transpose(2, 0, 1))
-                    p_oj = np.where(doj <= config.link.max_range_m, p_oj, 0.0)
-                p_oj[oth, np.arange(oth.size)] = 0.0
+                p_oj = _power_at_all(config, road, snap, oth)
                 interf[k] += db_to_linear(config.link.inband_emission_db) * p_oj.sum(axis=1)
         c_max = max((t.shape[1] for t in terms), default=0)
         interferer = np.zeros((b, n, c_max))

@@ -10,7 +10,7 @@ from cv2x_marl.experiments.gbmu_study import gbmu_inputs, run_study, seven_node_
 from cv2x_marl.policies.gbmu import GbmuInputs, climb, gbmu_direction, oracle_direction
 from cv2x_marl.regression import TwoDistanceModel
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import MoverLinks
+from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks
 from cv2x_marl.utility import utility_log
 
 PAPER = TwoDistanceModel.paper_table2()
@@ -97,8 +97,9 @@ def test_gbmu_is_scaled_gradient_ascent_on_the_model_utility() -> None:
     np.testing.assert_allclose(gbmu_direction(inp, model)(pos)[0], math.log(10) * grad / 3, rtol=1e-6)
 
 
-def test_true_utility_matches_the_simulators_link_computation() -> None:
-    cfg = from_dict({"sim": {"warmup_subframes": 500}}, preset("paper"))
+@pytest.mark.parametrize("ibe_db", [None, -25.0])
+def test_true_utility_matches_the_simulators_link_computation(ibe_db: float | None) -> None:
+    cfg = from_dict({"sim": {"warmup_subframes": 500}, "link": {"inband_emission_db": ibe_db}}, preset("paper"))
     sim = Simulator(cfg)
     snap = sim.reset(seed=12)
     links = sim.run(cfg.traffic.rri_ms).links  # the period right after the snapshot
@@ -110,6 +111,8 @@ def test_true_utility_matches_the_simulators_link_computation() -> None:
         rx, p_sim, hd = links["rx"][mine], links["p_success"][mine], links["cause"][mine] == 1
         np.testing.assert_allclose(p[rx[~hd]], p_sim[~hd], rtol=1e-9, atol=1e-12)
         assert not ml.target[0][rx[hd]].any() and not ml.target[0][mover]
+        sl = SnapshotLinks(cfg, snap)  # the env's all-links evaluator agrees too
+        np.testing.assert_allclose(sl.success(snap.positions_m)[mover], p, rtol=1e-9, atol=1e-12)
 
 
 def test_seven_node_inputs_match_the_fixture() -> None:
