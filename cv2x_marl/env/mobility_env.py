@@ -19,12 +19,15 @@ from pettingzoo import ParallelEnv
 from cv2x_marl.config import ScenarioConfig, apply_overrides
 from cv2x_marl.config import preset as load_preset
 from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
-from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import SnapshotLinks
+from cv2x_marl.sim import Simulator, kernels
+from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.road import Road
 
 MODES = ("snapshot", "traffic")
 REWARDS = ("individual", "team", "mixed")
+#: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
+INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 
 
 def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
@@ -122,7 +125,11 @@ class MobilityEnv(ParallelEnv):
         if movers is not None:
             self.mover_mask[:] = False
             self.mover_mask[list(movers)] = True
-        box = Simulator(cfg).road.box_m
+        self._step_scale_m = self.max_step_m * self.mover_mask[:, None].astype(np.float64)  # [N, 1]
+        road = Road.from_config(cfg.road)
+        self._wrap_road = road if cfg.road.wrap_distances else None
+        self._geometry: PairGeometry | None = None
+        box = road.box_m
         self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
         self.layout = ObservationLayout(n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m)
         clip = self.layout.obs_clip
@@ -153,17 +160,16 @@ class MobilityEnv(ParallelEnv):
         if self.mode == "snapshot":
             self.links = SnapshotLinks(self.config, snap, self.truth_los)
         self.offsets_m = np.zeros((self.n, 2))
-        self._co_resource: NDArray[np.int64] | None = None
-        self._co_table = np.zeros((self.n, 1), dtype=np.int64)
+        self._co_resource = self.resource.copy()
+        self._co_table: NDArray[np.int64] | None = None
         self.t = 0
         self.agents = self.possible_agents[:]
         self._live = set(self.agents)
         self.tracks = [self.positions_m.copy()]
-        p, target = self._link_success()
-        self.p, self.target = p, target
-        self.u0 = self._utilities(p, target)
-        self.prr0 = self._prr(p, target)
-        self.u = self.u0.copy()
+        self.p, self.target = self._link_success()
+        self._summarise()
+        self.u0 = self.u.copy()
+        self.prr0 = self.prr.copy()
         obs = self._observations()
         infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
         return obs, infos
@@ -173,9 +179,8 @@ class MobilityEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset()")
         act = self._decode(actions)
-        clipped = np.any(np.abs(act) > 1.0, axis=1)
-        act = np.clip(act, -1.0, 1.0)
-        offsets = act * self.max_step_m * self.mover_mask[:, None]
+        clipped: NDArray[np.bool_] = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
+        offsets = np.minimum(np.maximum(act, -1.0), 1.0) * self._step_scale_m
         if self.mode == "snapshot":
             new = self._bound(self.positions_m + offsets)
             applied = new - self.positions_m
@@ -193,11 +198,9 @@ class MobilityEnv(ParallelEnv):
             self.positions_m = self._traffic_positions()
         self.t += 1
         self.tracks.append(self.positions_m.copy())
-        p, target = self._link_success()
-        self.p, self.target = p, target
-        u = self._utilities(p, target)
-        self.u = u
-        rewards_arr = self._rewards(u, target)
+        self.p, self.target = self._link_success()
+        self._summarise()
+        rewards_arr = self._rewards(self.u)
         done = self.t >= self.max_cycles
         agents = self.agents
         obs = self._observations()
@@ -214,29 +217,31 @@ class MobilityEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
+        """[N, 2] actions by vehicle index (0 for vehicles without an action); raises on bad input."""
         if not isinstance(actions, dict):
             raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
-        unknown = [a for a in actions if a not in self.agent_index or a not in self.agents]
-        if unknown:
-            raise KeyError(
-                f"unknown or finished agent(s) {unknown}; live agents: {self.agents[0]} .. {self.agents[-1]}"
-            )
-        missing = [a for a in self.agents if a not in actions]
-        if missing:
+        if actions.keys() != self._live:
+            unknown = [a for a in actions if a not in self._live]
+            if unknown:
+                live = f"{self.agents[0]} .. {self.agents[-1]}" if self.agents else "none"
+                raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {live}")
+            missing = [a for a in self.agents if a not in actions]
             raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
-        idx = [self.agent_index[a] for a in actions]
         try:
-            arr = np.asarray(list(actions.values()), dtype=np.float64).reshape(len(idx), 2)
+            arr = np.array(list(actions.values()), dtype=np.float64)
         except ValueError:
+            arr = np.empty(0)
+        if arr.shape != (len(actions), 2):
             bad = [a for a, v in actions.items() if np.size(v) != 2]
-            raise ValueError(f"action of {bad[0] if bad else '?'} must have shape (2,)") from None
-        finite = np.isfinite(arr).all(axis=1)
-        if not finite.all():
-            k = int(np.flatnonzero(~finite)[0])
+            raise ValueError(f"action of {bad[0] if bad else '?'} must have shape (2,)")
+        if not np.isfinite(arr).all():
+            k = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
             name = list(actions)[k]
             raise ValueError(f"action of {name} is not finite: {arr[k].tolist()}")
+        if len(actions) == self.n and list(actions) == self.possible_agents:
+            return arr  # the usual case: every agent, in order
         act = np.zeros((self.n, 2))
-        act[idx] = arr
+        act[[self.agent_index[a] for a in actions]] = arr
         return act
 
     def _bound(self, pos: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -255,7 +260,9 @@ class MobilityEnv(ParallelEnv):
 
     def _link_success(self) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         if self.mode == "snapshot":
-            return self.links.success(self.positions_m), self.links.target
+            p, self._geometry = self.links.evaluate(self.positions_m)  # geometry shared with the observations
+            return p, self.links.target
+        self._geometry = pair_geometry(self.positions_m, self._wrap_road)
         assert self.sim.last_links is not None
         tx, rx, p, cause = self.sim.last_links
         dense = np.zeros((self.n, self.n))
@@ -266,23 +273,20 @@ class MobilityEnv(ParallelEnv):
         return dense, target
 
     def _utilities(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
-        u = np.where(target, np.log(np.maximum(p, self.p_min)), 0.0).sum(axis=1)
+        """[N] eq. 12 utility of each agent's broadcast (per receiver with ``normalise_reward``)."""
+        u = kernels.link_summaries(p, target, self.p_min)[0]
         if self.normalise_reward:
             u = u / np.maximum(target.sum(axis=1), 1)
         return u
 
-    def _prr(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
-        n = target.sum(axis=1)
-        return np.where(n > 0, np.where(target, p, 0.0).sum(axis=1) / np.maximum(n, 1), 0.0)
+    def _summarise(self) -> None:
+        """Utility (eq. 12), PRR and Jain's index of every agent from the current links."""
+        u, self.prr, self.jain = kernels.link_summaries(self.p, self.target, self.p_min)
+        if self.normalise_reward:
+            u = u / np.maximum(self.target.sum(axis=1), 1)
+        self.u = u
 
-    @staticmethod
-    def _jain(p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """Jain's index of each agent's link success over its targets (0 when undefined)."""
-        x = np.where(target, p, 0.0)
-        den = target.sum(axis=1) * (x * x).sum(axis=1)
-        return np.where(den > 0, x.sum(axis=1) ** 2 / np.where(den > 0, den, 1.0), 0.0)
-
-    def _rewards(self, u: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+    def _rewards(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.reward_kind == "individual":
             return u
         team = np.full_like(u, u.mean())
@@ -292,33 +296,28 @@ class MobilityEnv(ParallelEnv):
 
     def _observations(self) -> dict[str, NDArray[np.float32]]:
         drift = self.positions_m - self.start_m
-        if self._co_resource is None or not np.array_equal(self._co_resource, self.resource):
+        if self._co_table is None or (self.mode == "traffic" and not np.array_equal(self._co_resource, self.resource)):
             self._co_resource = self.resource.copy()
             self._co_table = co_channel_table(self.resource)
         obs = build_observations(
-            self.layout, self.positions_m, self.resource, self.target, drift, self.t / self.max_cycles, self._co_table
+            self.layout,
+            self.positions_m,
+            self.resource,
+            self.target,
+            drift,
+            self.t / self.max_cycles,
+            self._co_table,
+            self._geometry,
         )
         return dict(zip(self.agents, obs, strict=True))
 
     def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
-        """Numeric infos of every live agent, built from whole arrays."""
-        cols = {
-            "utility": self.u,
-            "utility_start": self.u0,
-            "prr": self._prr(self.p, self.target),
-            "prr_start": self.prr0,
-            "jain": self._jain(self.p, self.target),
-            "offset_x_m": applied[:, 0],
-            "offset_y_m": applied[:, 1],
-            "clipped": clipped.astype(np.float64),
-        }
-        keys = list(cols)
-        rows = zip(*(cols[k].tolist() for k in keys), strict=True)
-        return {
-            a: dict(zip(keys, row, strict=True))
-            for a, row in zip(self.possible_agents, rows, strict=True)
-            if a in self._live
-        }
+        """Numeric infos of every agent (all agents are live whenever infos are built)."""
+        table = np.stack(
+            (self.u, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped), axis=1
+        ).tolist()
+        keys = INFO_KEYS
+        return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}
 
     # ----------------------------------------------------------- state / draw
     def state(self) -> NDArray[np.float32]:

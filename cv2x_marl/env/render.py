@@ -35,7 +35,7 @@ def draw(env: Any, size_px: int = 480) -> NDArray[np.uint8]:
                 p, q = pos[members[a]], pos[members[b]]
                 if np.hypot(*(p - q)) <= env.config.metrics.interferer_range_m:
                     ax.plot([p[0], q[0]], [p[1], q[1]], ":", color="#f28e2b", lw=1.2, zorder=1)
-    prr = env._prr(env.p, env.target)
+    prr = env.prr
     sc = ax.scatter(pos[:, 0], pos[:, 1], c=prr, cmap="RdYlGn", vmin=0, vmax=1, s=40, edgecolors="k", zorder=2)
     del sc
     ax.set_xlim(-0.05 * w, 1.05 * w)

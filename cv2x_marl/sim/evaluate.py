@@ -17,15 +17,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig
-from cv2x_marl.sim import channel, link
+from cv2x_marl.sim import channel, kernels, link
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.simulator import Snapshot
-from cv2x_marl.units import SPEED_OF_LIGHT_MPS, db_to_linear, noise_power_dbm
+from cv2x_marl.units import db_to_linear, noise_power_dbm
 
 FloatArray = NDArray[np.float64]
 TRUTH_LOS = ("snapshot", "geometry", "always")
@@ -55,8 +56,10 @@ def _power_at_all(config: ScenarioConfig, road: Road, snap: Snapshot, tx: NDArra
     pos = snap.positions_m
     p = db_to_linear(mean_rx_dbm(config, road, pos[tx][None], pos[:, None], snap.los[:, tx], snap.shadowing_db[:, tx]))
     if config.link.max_range_m is not None:
-        d = np.hypot(*(pos[:, None, :] - pos[tx][None, :, :]).transpose(2, 0, 1))
-        p = np.where(d <= config.link.max_range_m, p, 0.0)
+        disp = pos[:, None, :] - pos[tx][None, :, :]
+        if config.road.wrap_distances:
+            road.minimum_image(disp)
+        p = np.where(np.hypot(disp[..., 0], disp[..., 1]) <= config.link.max_range_m, p, 0.0)
     p[tx, np.arange(tx.size)] = 0.0  # a transmitter does not interfere with itself
     return p
 
@@ -118,7 +121,10 @@ class MoverLinks:
             los[k] = snap.los[i]
             shadow[k] = snap.shadowing_db[i]
             tgt = snap.slot != snap.slot[i]
-            dist = np.hypot(*(pos - pos[i]).T)
+            disp = pos - pos[i]
+            if config.road.wrap_distances:
+                road.minimum_image(disp)
+            dist = np.hypot(disp[:, 0], disp[:, 1])
             if config.link.max_range_m is not None:
                 tgt &= dist <= config.link.max_range_m
             if neighbourhood_m is not None:
@@ -148,8 +154,7 @@ class MoverLinks:
         b, n = self.los.shape
         hc_m, vc_m = self.road.corridors(pos_m)
         hc, vc = self.road.corridors(self.rx_pos_m.reshape(-1, 2))
-        hc, vc = hc.reshape(b, n), vc.reshape(b, n)
-        return ((hc == hc_m[:, None]) & (hc >= 0)) | ((vc == vc_m[:, None]) & (vc >= 0))
+        return Road.corridor_los((hc.reshape(b, n), vc.reshape(b, n)), (hc_m[:, None], vc_m[:, None]))
 
     def success(self, pos_m: FloatArray) -> FloatArray:
         """[B, N] expected success probability of the mover's packet at each receiver.
@@ -179,16 +184,51 @@ class MoverLinks:
         return np.where(self.target, p, 0.0)
 
 
+class PairGeometry(NamedTuple):
+    """Displacements and squared distances of every ordered vehicle pair (shared per step).
+
+    Attributes:
+        disp_m: [2, N, N] ``disp_m[:, i, j] = position_j - position_i`` (m).
+        dist2_m2: [N, N] squared distances (m^2), 0 on the diagonal.
+    """
+
+    disp_m: FloatArray
+    dist2_m2: FloatArray
+
+
+def pair_geometry(positions_m: FloatArray, road: Road | None = None) -> PairGeometry:
+    """:class:`PairGeometry` of positions ``[N, 2]`` (m), array code over the N x N pairs.
+
+    Args:
+        positions_m: [N, 2] vehicle positions (m).
+        road: fold the displacements onto this road's torus (``road.wrap_distances``); None: plain.
+    """
+    pt = np.asarray(positions_m, dtype=np.float64).T
+    disp = pt[:, None, :] - pt[:, :, None]
+    if road is not None:
+        road.minimum_image(np.moveaxis(disp, 0, -1))  # in place through the [N, N, 2] view
+    return PairGeometry(disp, disp[0] * disp[0] + disp[1] * disp[1])
+
+
 class SnapshotLinks:
     """Expected success of every link of a snapshot when any vehicles move (the env's reward).
 
     Resources, shadowing and (with ``truth_los="snapshot"``) LOS states stay those of the
     snapshot; positions are free. ``success(positions)`` returns ``P[tx, rx]`` for all N x N
-    links: the signal from the moved transmitter, interference from the moved co-channel
-    transmitters, half duplex, the link model. One call is array code over the N(N-1)/2 pairs.
+    links: the signal from the moved transmitter (WINNER+ B1 or eq. 3 path loss, the snapshot's
+    shadowing), interference from the moved co-channel transmitters (plus in-band emission from
+    the other subchannels of the subframe when configured), half duplex, noise, then the PER table
+    or the threshold. Distances fold on the torus when ``road.wrap_distances``.
+
+    Two implementations, tested equal: numpy array code over the N x N pairs built on
+    :func:`mean_rx_dbm` (the reference; every path-loss model and LOS rule), and the fused kernel
+    :func:`cv2x_marl.sim.kernels.snapshot_links` (WINNER+ B1 with the snapshot's or forced LOS: the
+    env's default, about 10x faster), used when ``compiled`` and the configuration allows it.
     """
 
-    def __init__(self, config: ScenarioConfig, snapshot: Snapshot, truth_los: str = "snapshot") -> None:
+    def __init__(
+        self, config: ScenarioConfig, snapshot: Snapshot, truth_los: str = "snapshot", compiled: bool = True
+    ) -> None:
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
         if config.link.model == "rayleigh":
@@ -199,99 +239,112 @@ class SnapshotLinks:
         self.truth_los = truth_los
         n = snapshot.positions_m.shape[0]
         self.n = n
-        self.iu, self.ju = np.triu_indices(n, 1)
-        self.shadow_u = snapshot.shadowing_db[self.iu, self.ju]
-        self.los_u = snapshot.los[self.iu, self.ju] if truth_los == "snapshot" else np.ones(self.iu.size, bool)
+        eye = np.eye(n, dtype=bool)
+        self.shadow_db = np.asarray(snapshot.shadowing_db, dtype=np.float64)
+        self.los = np.asarray(snapshot.los, dtype=bool) if truth_los == "snapshot" else np.ones((n, n), bool)
         res = snapshot.slot * snapshot.n_subchannels + snapshot.subchannel
-        uniq, self.res_idx = np.unique(res, return_inverse=True)
-        self.onehot = (self.res_idx[:, None] == np.arange(uniq.size)[None, :]).astype(np.float64)  # [N, R']
-        self.same_res = self.res_idx[:, None] == self.res_idx[None, :]
+        same_res = res[:, None] == res[None, :]
         slot = snapshot.slot
         self.target = slot[:, None] != slot[None, :]  # [tx, rx]: half duplex excluded (and the diagonal)
-        self.same_slot_other = (slot[:, None] == slot[None, :]) & ~self.same_res
+        # interference weights W[tx, c]: 1 for the other transmitters on tx's resource, the in-band
+        # emission factor for the other subchannels of tx's subframe; I[tx, rx] = sum_c W[tx, c] m[c, rx]
+        self.interference_weight = (same_res & ~eye).astype(np.float64)
+        if config.link.inband_emission_db is not None:
+            same_slot_other = (slot[:, None] == slot[None, :]) & ~same_res
+            self.interference_weight += float(db_to_linear(config.link.inband_emission_db)) * same_slot_other
         radio = config.radio
         self.eirp_dbm = radio.tx_power_dbm + radio.tx_antenna_gain_dbi + radio.rx_antenna_gain_dbi
         self.noise_mw = float(db_to_linear(noise_power_dbm(radio.noise_dbm, radio.noise_figure_db)))
         self.curve = link.load_per_curve(config.link.per_curve)
-        self.ibe = (
-            None if config.link.inband_emission_db is None else float(db_to_linear(config.link.inband_emission_db))
-        )
-        self._fast = (
-            config.channel.pathloss == "winner_b1" and truth_los != "geometry" and not config.road.wrap_distances
-        )
-        if self._fast:
-            fc_ghz = radio.carrier_hz / 1e9
-            h = config.channel.effective_height_m
-            self._d_bp = 4.0 * h * h * radio.carrier_hz / SPEED_OF_LIGHT_MPS
-            self._c_near = 41.0 + 20.0 * np.log10(fc_ghz / 5.0)
-            self._c_far = 9.45 - 34.6 * np.log10(h) + 2.7 * np.log10(fc_ghz / 5.0)
-            self._c_nlos = 20.0 + 3.0 * np.log10(fc_ghz / 5.0)
-            self._c_free = 46.4 + 20.0 * np.log10(fc_ghz / 5.0)
-            self._nlos_idx = np.flatnonzero(~self.los_u)
-            self._gain_u = self.eirp_dbm - self.shadow_u
+        rng = config.link.max_range_m
+        self._range2 = None if rng is None else rng * rng
+        self._wrap_road = self.road if config.road.wrap_distances else None
+        self.compiled = compiled and config.channel.pathloss == "winner_b1" and truth_los != "geometry"
+        if self.compiled:
+            ch = config.channel
+            self._kernel_args = self._kernel_arguments(
+                kernels.winner_b1_constants(radio.carrier_hz, ch.effective_height_m, ch.min_distance_m)
+            )
 
-    def _winner_fast_db(self, pos: FloatArray) -> FloatArray:
-        """WINNER+ B1 loss of the unordered pairs with the snapshot's LOS states (same formulas as
-        :func:`cv2x_marl.sim.channel.winner_b1_db`, fused; NLOS only on the NLOS pairs)."""
-        dmin = self.config.channel.min_distance_m
-        dx = pos[self.iu, 0] - pos[self.ju, 0]
-        dy = pos[self.iu, 1] - pos[self.ju, 1]
-        ld = 0.5 * np.log10(np.maximum(dx * dx + dy * dy, dmin * dmin))
-        d = 10.0**ld
-        pl = np.where(d < self._d_bp, 22.7 * ld + self._c_near, 40.0 * ld + self._c_far)
-        k = self._nlos_idx
-        if k.size:
-            ax = np.maximum(np.abs(dx[k]), dmin)
-            ay = np.maximum(np.abs(dy[k]), dmin)
-            lx, ly = np.log10(ax), np.log10(ay)
-            nx = np.maximum(2.8 - 0.0024 * ax, 1.84)
-            ny = np.maximum(2.8 - 0.0024 * ay, 1.84)
-            los_x = np.where(ax < self._d_bp, 22.7 * lx + self._c_near, 40.0 * lx + self._c_far)
-            los_y = np.where(ay < self._d_bp, 22.7 * ly + self._c_near, 40.0 * ly + self._c_far)
-            n1 = los_x + self._c_nlos - 12.5 * nx + 10.0 * nx * ly
-            n2 = los_y + self._c_nlos - 12.5 * ny + 10.0 * ny * lx
-            pl[k] = np.minimum(n1, n2)
-        return np.maximum(pl, 20.0 * ld + self._c_free)
+    def _kernel_arguments(self, wb1: FloatArray) -> tuple:
+        w = self.interference_weight
+        g = max(int((w > 0).sum(axis=1).max()), 1)
+        idx = np.full((self.n, g), -1, dtype=np.int64)
+        val = np.zeros((self.n, g))
+        rows, cols = np.nonzero(w)
+        rank = np.arange(rows.size) - np.searchsorted(rows, rows)
+        idx[rows, rank] = cols
+        val[rows, rank] = w[rows, cols]
+        cfg = self.config
+        period = self.road.periodic_box_m if self._wrap_road is not None else np.full(2, np.inf)
+        return (
+            np.asarray(period, dtype=np.float64),
+            np.ascontiguousarray(self.los),
+            np.ascontiguousarray(self.eirp_dbm - self.shadow_db),
+            wb1,
+            np.inf if self._range2 is None else float(self._range2),
+            idx,
+            val,
+            self.noise_mw,
+            kernels.MODEL_PER_TABLE if cfg.link.model == "per_table" else kernels.MODEL_THRESHOLD,
+            np.ascontiguousarray(self.curve.sinr_db, dtype=np.float64),
+            np.ascontiguousarray(self.curve.per, dtype=np.float64),
+            float(cfg.link.sinr_threshold_db),
+            -np.inf if cfg.radio.sensitivity_dbm is None else float(cfg.radio.sensitivity_dbm),
+            np.ascontiguousarray(self.target),
+        )
 
-    def power_mw(self, positions_m: FloatArray) -> FloatArray:
-        """[N, N] mean received power (symmetric; zero on the diagonal and beyond the cut-off)."""
-        pos = positions_m
-        a, b = self.iu, self.ju
-        if self._fast and self.config.link.max_range_m is None:
-            mw = 10.0 ** ((self._gain_u - self._winner_fast_db(pos)) / 10.0)
-            m = np.zeros((self.n, self.n))
-            m[a, b] = mw
-            m[b, a] = mw
-            return m
+    def geometry(self, positions_m: FloatArray) -> PairGeometry:
+        """:func:`pair_geometry` of ``positions_m`` (folded on the torus when ``road.wrap_distances``)."""
+        return pair_geometry(positions_m, self._wrap_road)
+
+    def rx_dbm(self, positions_m: FloatArray) -> FloatArray:
+        """[N(tx), N(rx)] mean received power (dBm), numpy reference: EIRP - path loss - shadowing;
+        -inf on the diagonal and beyond ``link.max_range_m``.
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+        """
+        los = self.los
         if self.truth_los == "geometry" and self.road.kind == "grid":
-            hc, vc = self.road.corridors(pos)
-            los = ((hc[a] == hc[b]) & (hc[a] >= 0)) | ((vc[a] == vc[b]) & (vc[a] >= 0))
-        else:
-            los = self.los_u
-        dbm = mean_rx_dbm(self.config, self.road, pos[a], pos[b], los, self.shadow_u)
-        mw = db_to_linear(dbm)
-        rng = self.config.link.max_range_m
-        if rng is not None:
-            mw = np.where(np.hypot(*(pos[a] - pos[b]).T) <= rng, mw, 0.0)
-        m = np.zeros((self.n, self.n))
-        m[a, b] = mw
-        m[b, a] = mw
-        return m
+            hc, vc = self.road.corridors(positions_m)
+            los = Road.corridor_los((hc[:, None], vc[:, None]), (hc[None, :], vc[None, :]))
+        pos = np.asarray(positions_m, dtype=np.float64)
+        dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, self.shadow_db)
+        dbm[np.diag_indices(self.n)] = -np.inf
+        if self._range2 is not None:
+            dbm = np.where(self.geometry(pos).dist2_m2 <= self._range2, dbm, -np.inf)
+        return dbm
 
-    def success(self, positions_m: FloatArray) -> FloatArray:
-        """[N(tx), N(rx)] expected success probability; 0 where rx is not a target of tx."""
-        m = self.power_mw(positions_m)  # m[c, j]: power of c at j
-        per_res = m.T @ self.onehot  # [rx, R'] total power on each resource at each receiver
-        interference = per_res[:, self.res_idx].T - m  # [tx, rx]
-        if self.ibe is not None:
-            # leakage from the other subchannels of the transmitter's subframe: sum_c S[tx, c] m[c, rx]
-            interference = interference + self.ibe * (self.same_slot_other.astype(np.float64) @ m)
-        sinr_db = 10.0 * np.log10(np.maximum(m, 1e-300) / (np.maximum(interference, 0.0) + self.noise_mw))
+    def evaluate(self, positions_m: FloatArray) -> tuple[FloatArray, PairGeometry]:
+        """Expected success of every link and the pair geometry it used.
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+
+        Returns:
+            ``P[tx, rx]`` [N, N] (0 where rx is not a target of tx) and the :class:`PairGeometry`.
+        """
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        if self.compiled:
+            disp, dist2, p = kernels.snapshot_links(pos, *self._kernel_args)
+            return p, PairGeometry(disp, dist2)
+        s_dbm = self.rx_dbm(pos)
+        interference_mw = self.interference_weight @ 10.0 ** (s_dbm / 10.0)  # [tx, rx]
+        sinr_db = s_dbm - 10.0 * np.log10(interference_mw + self.noise_mw)
         if self.config.link.model == "per_table":
             p = self.curve.success(sinr_db)
         else:
             p = link.threshold_success(sinr_db, self.config.link.sinr_threshold_db)
         sens = self.config.radio.sensitivity_dbm
         if sens is not None:
-            p = np.where(10.0 * np.log10(np.maximum(m, 1e-300)) < sens, 0.0, p)
-        return np.where(self.target, p, 0.0)
+            p = np.where(s_dbm < sens, 0.0, p)
+        return np.where(self.target, p, 0.0), self.geometry(pos)
+
+    def success(self, positions_m: FloatArray) -> FloatArray:
+        """[N(tx), N(rx)] expected success probability; 0 where rx is not a target of tx.
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+        """
+        return self.evaluate(positions_m)[0]

@@ -109,3 +109,15 @@ class Road:
             inside = np.abs(c - self.road_pos_m[idx]) <= self.half_width_m + 1e-9
             out.append(np.where(inside, idx, -1))
         return out[0], out[1]
+
+    @staticmethod
+    def corridor_los(
+        corridors_a: tuple[IntArray, IntArray], corridors_b: tuple[IntArray, IntArray]
+    ) -> NDArray[np.bool_]:
+        """LOS by the corridor rule: both ends in the same horizontal or the same vertical street.
+
+        Args:
+            corridors_a, corridors_b: :meth:`corridors` outputs (h, v) of the two ends (broadcast).
+        """
+        (ha, va), (hb, vb) = corridors_a, corridors_b
+        return np.asarray(((ha == hb) & (ha >= 0)) | ((va == vb) & (va >= 0)))

@@ -273,7 +273,7 @@ class Simulator:
             los = np.ones(i.shape[0], dtype=bool)
         else:
             hc, vc = self.road.corridors(pos)
-            los = ((hc[i] == hc[j]) & (hc[i] >= 0)) | ((vc[i] == vc[j]) & (vc[i] >= 0))
+            los = Road.corridor_los((hc[i], vc[i]), (hc[j], vc[j]))
         vel = mobility.velocities_mps(self.state)
         rel = np.hypot(*(vel[i] - vel[j]).T)
         geo = _Geometry(pos, i, j, dist, los, np.empty(0), np.empty(0), rel)

@@ -1,0 +1,230 @@
+"""Compiled (numba) kernels for the hot path of the env: every link of a snapshot in one pass.
+
+The env evaluates all N x N links of a 21-vehicle snapshot once per step. In numpy that is some
+40 small array operations whose fixed cost (about 1 us each) dominates; these kernels fuse them
+into one compiled pass. They are not a second model: each one is tested equal (to 1e-9 relative)
+to the numpy reference built from :func:`cv2x_marl.sim.channel.winner_b1_db` and
+:func:`cv2x_marl.sim.evaluate.mean_rx_dbm`, and to the simulator's own link outcomes
+(``tests/sim/test_evaluate.py``). ``NUMBA_DISABLE_JIT=1`` runs them as plain Python for debugging.
+
+Compiled code is cached on disk (``cache=True``): the first call in a fresh checkout compiles
+(a few seconds), later processes load the cache.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from cv2x_marl.units import SPEED_OF_LIGHT_MPS
+
+FloatArray = NDArray[np.float64]
+
+#: order of the WINNER+ B1 constants in the ``wb1`` argument of :func:`snapshot_links`
+WB1_CONSTANTS = ("breakpoint_m", "c_near_db", "c_far_db", "c_nlos_db", "c_free_db", "min_distance_m")
+MODEL_PER_TABLE = 0
+MODEL_THRESHOLD = 1
+_DB_TO_NEPER = math.log(10.0) / 10.0
+
+
+def winner_b1_constants(carrier_hz: float, effective_height_m: float, min_distance_m: float) -> FloatArray:
+    """[6] WINNER+ B1 constants (:data:`WB1_CONSTANTS`) of :func:`cv2x_marl.sim.channel.winner_b1_db`.
+
+    Breakpoint ``4 h'^2 f_c / c``; LOS ``22.7 log10 d + 41 + 20 log10(f/5)`` below it and
+    ``40 log10 d + 9.45 - 17.3 log10(h'^2) + 2.7 log10(f/5)`` above; NLOS ``PL_LOS(d1) + 20 - 12.5 n
+    + 10 n log10 d2 + 3 log10(f/5)``, ``n = max(2.8 - 0.0024 d1, 1.84)``; free space ``20 log10 d +
+    46.4 + 20 log10(f/5)`` (IST-WINNER D1.1.2 / 3GPP TR 36.885 A.1.4), f in GHz.
+    """
+    fc_ghz = carrier_hz / 1e9
+    h = effective_height_m
+    return np.array(
+        [
+            4.0 * h * h * carrier_hz / SPEED_OF_LIGHT_MPS,
+            41.0 + 20.0 * math.log10(fc_ghz / 5.0),
+            9.45 - 34.6 * math.log10(h) + 2.7 * math.log10(fc_ghz / 5.0),
+            20.0 + 3.0 * math.log10(fc_ghz / 5.0),
+            46.4 + 20.0 * math.log10(fc_ghz / 5.0),
+            min_distance_m,
+        ]
+    )
+
+
+@njit(cache=True)
+def _winner_los_db(d: float, log10_d: float, wb1: FloatArray) -> float:
+    if d < wb1[0]:
+        return 22.7 * log10_d + wb1[1]
+    return 40.0 * log10_d + wb1[2]
+
+
+@njit(cache=True)
+def winner_b1_pair_db(dx_m: float, dy_m: float, los: bool, wb1: FloatArray) -> float:
+    """WINNER+ B1 loss (dB) of one displacement, LOS or Manhattan NLOS, with the free-space floor."""
+    dmin = wb1[5]
+    d = max(math.sqrt(dx_m * dx_m + dy_m * dy_m), dmin)
+    ld = math.log10(d)
+    pl = _winner_los_db(d, ld, wb1)
+    if not los:
+        ax = max(abs(dx_m), dmin)
+        ay = max(abs(dy_m), dmin)
+        lx = math.log10(ax)
+        ly = math.log10(ay)
+        nx = max(2.8 - 0.0024 * ax, 1.84)
+        ny = max(2.8 - 0.0024 * ay, 1.84)
+        n1 = _winner_los_db(ax, lx, wb1) + wb1[3] - 12.5 * nx + 10.0 * nx * ly
+        n2 = _winner_los_db(ay, ly, wb1) + wb1[3] - 12.5 * ny + 10.0 * ny * lx
+        pl = min(n1, n2)
+    return max(pl, 20.0 * ld + wb1[4])
+
+
+@njit(cache=True)
+def _per_success(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray) -> float:
+    """``1 - PER`` linearly interpolated (PER 1 below the table, the last PER above): np.interp's formula."""
+    k = per_sinr_db.shape[0]
+    if not sinr_db >= per_sinr_db[0]:  # also -inf and NaN
+        return 0.0
+    if sinr_db >= per_sinr_db[k - 1]:
+        return 1.0 - per[k - 1]
+    j = np.searchsorted(per_sinr_db, sinr_db, side="right") - 1
+    slope = (per[j + 1] - per[j]) / (per_sinr_db[j + 1] - per_sinr_db[j])
+    return 1.0 - (slope * (sinr_db - per_sinr_db[j]) + per[j])
+
+
+@njit(cache=True)
+def snapshot_links(
+    positions_m: FloatArray,
+    period_m: FloatArray,
+    los: NDArray[np.bool_],
+    gain_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    interferer_idx: NDArray[np.int64],
+    interferer_weight: FloatArray,
+    noise_mw: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    target: NDArray[np.bool_],
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Geometry and expected success probability of every link (WINNER+ B1).
+
+    Args:
+        positions_m: [N, 2] vehicle positions (m).
+        period_m: [2] torus period per axis (inf: that axis does not wrap); minimum image.
+        los: [N, N] LOS state of each pair.
+        gain_db: [N, N] EIRP minus shadowing of each pair (dBm): mean Rx power = gain - path loss.
+        wb1: [6] :func:`winner_b1_constants`.
+        range2_m2: squared link cut-off (inf: none); pairs beyond it carry no power.
+        interferer_idx: [N, G] the vehicles whose power interferes with each transmitter's packet
+            (its co-channel users, and with in-band emission the rest of its subframe), -1 padded.
+        interferer_weight: [N, G] their weights (1 co-channel, the emission factor otherwise).
+        noise_mw: thermal noise plus noise figure (mW).
+        model: :data:`MODEL_PER_TABLE` (``1 - PER(SINR)``) or :data:`MODEL_THRESHOLD`.
+        per_sinr_db, per: [K] the PER table (ascending SINR).
+        threshold_db: SINR threshold of the threshold model.
+        sensitivity_dbm: receivers below it decode nothing (-inf: no sensitivity).
+        target: [N(tx), N(rx)] links that count (half duplex and the diagonal excluded).
+
+    Returns:
+        disp_m: [2, N, N] ``position_j - position_i`` (folded on the torus);
+        dist2_m2: [N, N] squared distances;
+        p: [N(tx), N(rx)] expected success, 0 off ``target``.
+    """
+    n = positions_m.shape[0]
+    disp = np.empty((2, n, n))
+    dist2 = np.empty((n, n))
+    rx_dbm = np.empty((n, n))
+    rx_mw = np.empty((n, n))
+    for i in range(n):
+        disp[0, i, i] = 0.0
+        disp[1, i, i] = 0.0
+        dist2[i, i] = 0.0
+        rx_dbm[i, i] = -np.inf
+        rx_mw[i, i] = 0.0
+        for j in range(i + 1, n):
+            dx = positions_m[j, 0] - positions_m[i, 0]
+            dy = positions_m[j, 1] - positions_m[i, 1]
+            if period_m[0] < np.inf:
+                dx -= period_m[0] * np.rint(dx / period_m[0])
+            if period_m[1] < np.inf:
+                dy -= period_m[1] * np.rint(dy / period_m[1])
+            d2 = dx * dx + dy * dy
+            disp[0, i, j] = dx
+            disp[1, i, j] = dy
+            disp[0, j, i] = -dx
+            disp[1, j, i] = -dy
+            dist2[i, j] = d2
+            dist2[j, i] = d2
+            if d2 <= range2_m2:
+                pl = winner_b1_pair_db(dx, dy, los[i, j], wb1)
+                a = gain_db[i, j] - pl
+                b = gain_db[j, i] - pl
+            else:
+                a = -np.inf
+                b = -np.inf
+            rx_dbm[i, j] = a
+            rx_dbm[j, i] = b
+            rx_mw[i, j] = math.exp(a * _DB_TO_NEPER)  # 10 ** (a / 10)
+            rx_mw[j, i] = math.exp(b * _DB_TO_NEPER)
+    p = np.zeros((n, n))
+    g_max = interferer_idx.shape[1]
+    for tx in range(n):
+        for rx in range(n):
+            if not target[tx, rx]:
+                continue
+            s_dbm = rx_dbm[tx, rx]
+            if s_dbm < sensitivity_dbm or s_dbm == -np.inf:
+                continue
+            interference = 0.0
+            for g in range(g_max):
+                c = interferer_idx[tx, g]
+                if c < 0:
+                    break
+                interference += interferer_weight[tx, g] * rx_mw[c, rx]
+            sinr_db = s_dbm - 10.0 * math.log10(interference + noise_mw)
+            if model == MODEL_PER_TABLE:
+                p[tx, rx] = _per_success(sinr_db, per_sinr_db, per)
+            elif sinr_db >= threshold_db:
+                p[tx, rx] = 1.0
+    return disp, dist2, p
+
+
+@njit(cache=True)
+def link_summaries(p: FloatArray, target: NDArray[np.bool_], p_min: float) -> FloatArray:
+    """[3, N] per transmitter: eq. 12 utility, PRR and Jain's index over its target receivers.
+
+    Row 0: ``sum_{j in R_i} log(max(P_ij, p_min))`` (eq. 12, natural log); row 1: the mean of
+    ``P_ij`` over ``R_i``; row 2: Jain's index ``(sum P)^2 / (|R_i| sum P^2)``. Rows 1 and 2 are 0
+    where undefined (no targets, or all P = 0). The same quantities as
+    :func:`cv2x_marl.utility.utility_log`, :func:`~cv2x_marl.utility.per_node_prr` and
+    :func:`~cv2x_marl.utility.jain_fairness` (tested equal) in one pass.
+
+    Args:
+        p: [N(tx), N(rx)] link success probabilities.
+        target: [N(tx), N(rx)] target receivers ``R_i``.
+        p_min: clip of P inside the log.
+    """
+    n_tx, n_rx = p.shape
+    out = np.zeros((3, n_tx))
+    for i in range(n_tx):
+        count = 0
+        s1 = 0.0
+        s2 = 0.0
+        u = 0.0
+        for j in range(n_rx):
+            if target[i, j]:
+                x = p[i, j]
+                count += 1
+                s1 += x
+                s2 += x * x
+                u += math.log(max(x, p_min))
+        out[0, i] = u
+        if count > 0:
+            out[1, i] = s1 / count
+            if s2 > 0.0:
+                out[2, i] = s1 * s1 / (count * s2)
+    return out
