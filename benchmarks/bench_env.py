@@ -21,7 +21,6 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 
-
 def agent_steps_per_s(env: Any, steps: int) -> float:
     env.reset(seed=0)
     for i, a in enumerate(env.possible_agents):
