@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cv2x_marl.config import ChannelConfig
+from cv2x_marl.sim import kernels
 from cv2x_marl.units import SPEED_OF_LIGHT_MPS
 
 FloatArray = NDArray[np.float64]
@@ -96,16 +97,16 @@ def winner_b1_db(
 ) -> FloatArray:
     """WINNER+ B1 V2V path loss for displacement ``(dx, dy)``, LOS or Manhattan NLOS, with the free-space floor.
 
-    Distances (and the street distances of NLOS) below ``min_distance_m`` are clipped to it.
+    Distances (and the street distances of NLOS) below ``min_distance_m`` are clipped to it. The
+    formulas of :func:`winner_b1_los_db`, :func:`winner_b1_nlos_db` and :func:`free_space_db`,
+    evaluated element by element in one compiled pass (:func:`cv2x_marl.sim.kernels.winner_b1_ufunc`;
+    tested equal to their numpy composition). Arguments broadcast.
     """
-    dx = np.maximum(np.abs(np.asarray(dx_m, dtype=np.float64)), min_distance_m)
-    dy = np.maximum(np.abs(np.asarray(dy_m, dtype=np.float64)), min_distance_m)
-    d = np.maximum(np.hypot(np.asarray(dx_m, dtype=np.float64), np.asarray(dy_m, dtype=np.float64)), min_distance_m)
-    los = np.asarray(los, dtype=bool)
-    pl = winner_b1_los_db(d, carrier_hz, effective_height_m)
-    if not np.all(los):
-        pl = np.where(los, pl, winner_b1_nlos_db(dx, dy, carrier_hz, effective_height_m))
-    return np.maximum(pl, free_space_db(d, carrier_hz))
+    wb1 = kernels.winner_b1_constants(carrier_hz, effective_height_m, min_distance_m)
+    out = kernels.winner_b1_ufunc(
+        np.asarray(dx_m, dtype=np.float64), np.asarray(dy_m, dtype=np.float64), np.asarray(los, dtype=bool), *wb1
+    )
+    return np.asarray(out)
 
 
 def path_loss_db(cfg: ChannelConfig, carrier_hz: float, disp_m: FloatArray, los: ArrayLike) -> FloatArray:

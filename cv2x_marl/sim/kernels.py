@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, vectorize
 from numpy.typing import NDArray
 
 from cv2x_marl.units import SPEED_OF_LIGHT_MPS
@@ -53,19 +53,29 @@ def winner_b1_constants(carrier_hz: float, effective_height_m: float, min_distan
 
 
 @njit(cache=True)
-def _winner_los_db(d: float, log10_d: float, wb1: FloatArray) -> float:
-    if d < wb1[0]:
-        return 22.7 * log10_d + wb1[1]
-    return 40.0 * log10_d + wb1[2]
+def _winner_los_db(d: float, log10_d: float, d_bp: float, c_near: float, c_far: float) -> float:
+    if d < d_bp:
+        return 22.7 * log10_d + c_near
+    return 40.0 * log10_d + c_far
 
 
 @njit(cache=True)
-def winner_b1_pair_db(dx_m: float, dy_m: float, los: bool, wb1: FloatArray) -> float:
-    """WINNER+ B1 loss (dB) of one displacement, LOS or Manhattan NLOS, with the free-space floor."""
-    dmin = wb1[5]
+def winner_b1_pair_db(
+    dx_m: float,
+    dy_m: float,
+    los: bool,
+    d_bp: float,
+    c_near: float,
+    c_far: float,
+    c_nlos: float,
+    c_free: float,
+    dmin: float,
+) -> float:
+    """WINNER+ B1 loss (dB) of one displacement, LOS or Manhattan NLOS, with the free-space floor
+    (constants from :func:`winner_b1_constants`)."""
     d = max(math.sqrt(dx_m * dx_m + dy_m * dy_m), dmin)
     ld = math.log10(d)
-    pl = _winner_los_db(d, ld, wb1)
+    pl = _winner_los_db(d, ld, d_bp, c_near, c_far)
     if not los:
         ax = max(abs(dx_m), dmin)
         ay = max(abs(dy_m), dmin)
@@ -73,10 +83,26 @@ def winner_b1_pair_db(dx_m: float, dy_m: float, los: bool, wb1: FloatArray) -> f
         ly = math.log10(ay)
         nx = max(2.8 - 0.0024 * ax, 1.84)
         ny = max(2.8 - 0.0024 * ay, 1.84)
-        n1 = _winner_los_db(ax, lx, wb1) + wb1[3] - 12.5 * nx + 10.0 * nx * ly
-        n2 = _winner_los_db(ay, ly, wb1) + wb1[3] - 12.5 * ny + 10.0 * ny * lx
+        n1 = _winner_los_db(ax, lx, d_bp, c_near, c_far) + c_nlos - 12.5 * nx + 10.0 * nx * ly
+        n2 = _winner_los_db(ay, ly, d_bp, c_near, c_far) + c_nlos - 12.5 * ny + 10.0 * ny * lx
         pl = min(n1, n2)
-    return max(pl, 20.0 * ld + wb1[4])
+    return max(pl, 20.0 * ld + c_free)
+
+
+@vectorize(["float64(float64, float64, boolean, float64, float64, float64, float64, float64, float64)"], cache=True)
+def winner_b1_ufunc(
+    dx_m: float,
+    dy_m: float,
+    los: bool,
+    d_bp: float,
+    c_near: float,
+    c_far: float,
+    c_nlos: float,
+    c_free: float,
+    dmin: float,
+) -> float:  # pragma: no cover - compiled
+    """:func:`winner_b1_pair_db` as a numpy ufunc (broadcasting over its arguments)."""
+    return winner_b1_pair_db(dx_m, dy_m, los, d_bp, c_near, c_far, c_nlos, c_free, dmin)
 
 
 @njit(cache=True)
@@ -160,7 +186,7 @@ def snapshot_links(
             dist2[i, j] = d2
             dist2[j, i] = d2
             if d2 <= range2_m2:
-                pl = winner_b1_pair_db(dx, dy, los[i, j], wb1)
+                pl = winner_b1_pair_db(dx, dy, los[i, j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
                 a = gain_db[i, j] - pl
                 b = gain_db[j, i] - pl
             else:

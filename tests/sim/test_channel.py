@@ -96,3 +96,22 @@ def test_shadowing_statistics_and_correlation() -> None:
     z1 = sh.sample(i, j, odo)
     assert np.corrcoef(z0, z1)[0, 1] == pytest.approx(np.exp(-0.5), abs=0.01)
     assert z1.std() == pytest.approx(1.0, abs=0.01)
+
+
+@pytest.mark.parametrize("h_m", [0.5, 1.5])
+def test_compiled_winner_b1_equals_the_formula_composition(h_m: float) -> None:
+    """winner_b1_db (one compiled pass) against the numpy LOS / NLOS / free-space formulas."""
+    rng = np.random.default_rng(2)
+    dx = rng.uniform(-600.0, 600.0, 4000) * (rng.random(4000) < 0.9)  # some exact zeros (street-aligned)
+    dy = rng.uniform(-600.0, 600.0, 4000) * (rng.random(4000) < 0.9)
+    dx[:50] = rng.uniform(-2.0, 2.0, 50)  # below the 3 m clip
+    los = rng.random(4000) < 0.5
+    dmin = 3.0
+    d = np.maximum(np.hypot(dx, dy), dmin)
+    ax, ay = np.maximum(np.abs(dx), dmin), np.maximum(np.abs(dy), dmin)
+    want = np.where(los, channel.winner_b1_los_db(d, 5.9e9, h_m), channel.winner_b1_nlos_db(ax, ay, 5.9e9, h_m))
+    want = np.maximum(want, channel.free_space_db(d, 5.9e9))
+    np.testing.assert_allclose(channel.winner_b1_db(dx, dy, los, 5.9e9, h_m, dmin), want, rtol=1e-12, atol=1e-10)
+    # broadcasting: a [2, 1] column of dx against a [3] row of dy
+    got = channel.winner_b1_db(np.array([[10.0], [300.0]]), np.array([0.0, 5.0, 80.0]), False, 5.9e9, h_m)
+    assert got.shape == (2, 3)
