@@ -99,14 +99,15 @@ def winner_b1_db(
 
     Distances (and the street distances of NLOS) below ``min_distance_m`` are clipped to it. The
     formulas of :func:`winner_b1_los_db`, :func:`winner_b1_nlos_db` and :func:`free_space_db`,
-    evaluated element by element in one compiled pass (:func:`cv2x_marl.sim.kernels.winner_b1_ufunc`;
+    evaluated element by element in one compiled pass (:func:`cv2x_marl.sim.kernels.winner_b1_array_db`;
     tested equal to their numpy composition). Arguments broadcast.
     """
     wb1 = kernels.winner_b1_constants(carrier_hz, effective_height_m, min_distance_m)
-    out = kernels.winner_b1_ufunc(
-        np.asarray(dx_m, dtype=np.float64), np.asarray(dy_m, dtype=np.float64), np.asarray(los, dtype=bool), *wb1
+    dx, dy, lo = np.broadcast_arrays(
+        np.asarray(dx_m, dtype=np.float64), np.asarray(dy_m, dtype=np.float64), np.asarray(los, dtype=bool)
     )
-    return np.asarray(out)
+    flat = kernels.winner_b1_array_db(dx.ravel(), dy.ravel(), lo.ravel(), wb1)  # ravel: contiguous 1-D
+    return flat.reshape(dx.shape)[()]  # a numpy scalar for scalar input, as numpy ufuncs return
 
 
 def path_loss_db(cfg: ChannelConfig, carrier_hz: float, disp_m: FloatArray, los: ArrayLike) -> FloatArray:
@@ -135,13 +136,16 @@ class Shadowing:
 
     def sample(self, a: NDArray[np.int64], b: NDArray[np.int64], odometer_m: FloatArray) -> FloatArray:
         """Unit-variance shadowing of unordered pairs ``(a, b)``, updated to the current odometers."""
+        n = self._z.shape[0]
+        ab, ba = a * n + b, b * n + a  # flat indices of (a, b) and (b, a)
+        z_flat, odo_flat = self._z.reshape(-1), self._last_odo.reshape(-1)
         odo = odometer_m[a] + odometer_m[b]
-        rho = np.exp(-(odo - self._last_odo[a, b]) / self._dc)
-        z = rho * self._z[a, b] + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(a.shape[0])
-        self._z[a, b] = z
-        self._z[b, a] = z
-        self._last_odo[a, b] = odo
-        self._last_odo[b, a] = odo
+        rho = np.exp(-(odo - odo_flat[ab]) / self._dc)
+        z = rho * z_flat[ab] + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(a.shape[0])
+        z_flat[ab] = z
+        z_flat[ba] = z
+        odo_flat[ab] = odo
+        odo_flat[ba] = odo
         return z
 
 

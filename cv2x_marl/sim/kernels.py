@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, vectorize
+from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.units import SPEED_OF_LIGHT_MPS
@@ -89,20 +89,13 @@ def winner_b1_pair_db(
     return max(pl, 20.0 * ld + c_free)
 
 
-@vectorize(["float64(float64, float64, boolean, float64, float64, float64, float64, float64, float64)"], cache=True)
-def winner_b1_ufunc(
-    dx_m: float,
-    dy_m: float,
-    los: bool,
-    d_bp: float,
-    c_near: float,
-    c_far: float,
-    c_nlos: float,
-    c_free: float,
-    dmin: float,
-) -> float:  # pragma: no cover - compiled
-    """:func:`winner_b1_pair_db` as a numpy ufunc (broadcasting over its arguments)."""
-    return winner_b1_pair_db(dx_m, dy_m, los, d_bp, c_near, c_far, c_nlos, c_free, dmin)
+@njit(cache=True)
+def winner_b1_array_db(dx_m: FloatArray, dy_m: FloatArray, los: NDArray[np.bool_], wb1: FloatArray) -> FloatArray:
+    """[K] :func:`winner_b1_pair_db` of K displacements (1-D arrays; ``wb1`` from :func:`winner_b1_constants`)."""
+    out = np.empty(dx_m.shape[0])
+    for k in range(dx_m.shape[0]):
+        out[k] = winner_b1_pair_db(dx_m[k], dy_m[k], los[k], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+    return out
 
 
 @njit(cache=True)

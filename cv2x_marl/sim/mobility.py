@@ -46,8 +46,9 @@ def positions_m(road: Road, st: VehicleState) -> FloatArray:
 
 def velocities_mps(st: VehicleState) -> FloatArray:
     """[N, 2] velocity vectors in m/s."""
-    v = st.direction * st.speed_mps
-    return np.stack([np.where(st.axis == 0, v, 0.0), np.where(st.axis == 1, v, 0.0)], axis=1)
+    out = np.zeros((st.n, 2))
+    out[np.arange(st.n), st.axis] = st.direction * st.speed_mps  # along the vehicle's axis
+    return out
 
 
 def place(road: Road, vcfg: VehiclesConfig, n: int, rng: np.random.Generator) -> VehicleState:

@@ -101,14 +101,12 @@ class Road:
         if self.kind == "highway":
             n = positions_m.shape[0]
             return np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
-        spacing = self.length_m / self.n_roads
-        out = []
-        for axis in (1, 0):  # horizontal roads are at fixed y, vertical ones at fixed x
-            c = positions_m[:, axis]
-            idx = np.clip(np.floor(c / spacing).astype(np.int64), 0, self.n_roads - 1)
-            inside = np.abs(c - self.road_pos_m[idx]) <= self.half_width_m + 1e-9
-            out.append(np.where(inside, idx, -1))
-        return out[0], out[1]
+        # both axes at once: horizontal roads are at fixed y (column 1), vertical ones at fixed x
+        c = positions_m[:, ::-1]
+        idx = np.minimum(np.maximum(np.floor(c / (self.length_m / self.n_roads)), 0), self.n_roads - 1)
+        idx = idx.astype(np.int64)
+        out = np.where(np.abs(c - self.road_pos_m[idx]) <= self.half_width_m + 1e-9, idx, -1)
+        return out[:, 0], out[:, 1]
 
     @staticmethod
     def corridor_los(

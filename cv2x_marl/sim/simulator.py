@@ -19,7 +19,6 @@ subframe); b receives nothing in a subframe where it transmits (half duplex).
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -95,6 +94,14 @@ class RunResult:
     n_subframes: int
     runtime_s: float
     extra: dict[str, float] = field(default_factory=dict)
+
+
+def _nan_mean_first_axis(x: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``np.nanmean(x, axis=0)`` (same float32 result; NaN where all are NaN, without a warning)."""
+    valid = ~np.isnan(x)
+    total = np.where(valid, x, np.float32(0.0)).sum(axis=0)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(total / valid.sum(axis=0), dtype=np.float32)
 
 
 @dataclass
@@ -491,10 +498,8 @@ class Simulator:
             rsrp = last_rsrp[reselect[:, None], cand]
             if cfg.sps.exclude_unmonitored:
                 rsrp = np.where(cand // self.n_sub == self.slot[reselect][:, None], np.inf, rsrp)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: never measured
-                rssi = np.nanmean(self._rssi_ring[:, reselect[:, None], cand], axis=0)
-            rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)
+            rssi = _nan_mean_first_axis(self._rssi_ring[:, reselect[:, None], cand])
+            rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
             choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
             self.resource[reselect] = cand[np.arange(reselect.size), choice]
             self.n_reselections += int(reselect.size)

@@ -64,7 +64,7 @@ class Selection:
 
 def select(
     rsrp_dbm: FloatArray,
-    rssi_mw: FloatArray,
+    rssi_mw: NDArray[np.floating],
     cfg: SpsConfig,
     rng: np.random.Generator,
 ) -> Selection:
