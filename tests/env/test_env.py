@@ -136,6 +136,12 @@ def test_bad_actions_and_arguments() -> None:
     _, _, _, _, info = e.step({**acts, "vehicle_1": np.array([3.0, 0.0], np.float32)})
     assert info["vehicle_1"]["clipped"] == 1.0 and info["vehicle_1"]["offset_x_m"] == pytest.approx(5.0)
     assert info["vehicle_0"]["clipped"] == 0.0
+    with pytest.raises(ValueError, match=r"vehicle_4 must have shape \(2,\)"):
+        e.step({**acts, "vehicle_4": np.zeros(3)})
+    with pytest.raises(ValueError, match="vehicle_6 must have shape"):
+        e.step({**acts, "vehicle_6": np.zeros(1)})
+    with pytest.raises(TypeError, match="dict agent -> action"):
+        e.step([np.zeros(2)] * 21)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="max_step_m"):
         parallel_env(max_step_m=-1)
     with pytest.raises(ValueError, match=r"mode.*snapshot \| traffic"):
@@ -187,3 +193,18 @@ def test_gbmu_through_the_env_reproduces_the_study() -> None:
     np.testing.assert_allclose(env.positions_m[0], study.final_m[0], atol=1e-3)
     u_study = float(np.where(links.target[0], np.log(np.maximum(links.success(study.final_m)[0], 1e-3)), 0).sum())
     assert info["vehicle_0"]["utility"] == pytest.approx(u_study, rel=1e-4)
+
+
+def test_action_dict_order_does_not_matter() -> None:
+    rng = np.random.default_rng(4)
+    acts = {f"vehicle_{i}": rng.uniform(-1.2, 1.2, 2).astype(np.float32) for i in range(21)}
+    shuffled = dict(reversed(list(acts.items())))
+    out = []
+    for a in (acts, shuffled):
+        e = parallel_env(max_cycles=5, **FAST)
+        e.reset(seed=9)
+        out.append(e.step(a))
+    for name in acts:
+        np.testing.assert_array_equal(out[0][0][name], out[1][0][name])
+        assert out[0][1][name] == out[1][1][name] and out[0][4][name] == out[1][4][name]
+    assert out[0][4]["vehicle_0"]["offset_x_m"] != 0.0  # the actions did move the vehicles
