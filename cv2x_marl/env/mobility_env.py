@@ -228,12 +228,18 @@ class MobilityEnv(ParallelEnv):
             missing = [a for a in self.agents if a not in actions]
             raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
         try:
-            arr = np.array(list(actions.values()), dtype=np.float64)
-        except ValueError:
-            arr = np.empty(0)
-        if arr.shape != (len(actions), 2):
-            bad = [a for a, v in actions.items() if np.size(v) != 2]
-            raise ValueError(f"action of {bad[0] if bad else '?'} must have shape (2,)")
+            arr = np.array(list(actions.values()), dtype=np.float64).reshape(len(actions), 2)
+        except (ValueError, TypeError):  # ragged, wrong size or not numeric: find the culprit
+            rows = []
+            for a, v in actions.items():
+                try:
+                    row = np.asarray(v, dtype=np.float64)
+                except (ValueError, TypeError):
+                    raise ValueError(f"action of {a} must be numeric with shape (2,), got {v!r}") from None
+                if row.size != 2:
+                    raise ValueError(f"action of {a} must have shape (2,), got shape {row.shape}") from None
+                rows.append(row.reshape(2))
+            arr = np.array(rows)
         if not np.isfinite(arr).all():
             k = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
             name = list(actions)[k]

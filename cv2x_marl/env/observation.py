@@ -150,10 +150,15 @@ def build_observations(
         geometry: :func:`cv2x_marl.sim.evaluate.pair_geometry` of ``positions_m`` (computed when
             None; pass the road-folded one on a wrapping road).
     """
+    n = positions_m.shape[0]
+    if not 1 <= layout.n_neighbours <= n - 1:
+        raise ValueError(f"layout.n_neighbours must be in 1 .. {n - 1} for {n} vehicles, got {layout.n_neighbours}")
     if co_table is None:
         co_table = co_channel_table(resource)
     if geometry is None:
         geometry = pair_geometry(positions_m)
+    if geometry.dist2_m2.shape != (n, n) or target.shape != (n, n) or co_table.shape[0] != n:
+        raise ValueError(f"geometry, target and co_table must describe the same {n} vehicles as positions_m")
     return _observation_kernel(
         geometry.disp_m,
         geometry.dist2_m2,

@@ -326,6 +326,8 @@ class SnapshotLinks:
             ``P[tx, rx]`` [N, N] (0 where rx is not a target of tx) and the :class:`PairGeometry`.
         """
         pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        if pos.shape != (self.n, 2):
+            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
         if self.compiled:
             disp, dist2, p = kernels.snapshot_links(pos, *self._kernel_args)
             return p, PairGeometry(disp, dist2)

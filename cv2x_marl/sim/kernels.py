@@ -2,9 +2,12 @@
 
 The env evaluates all N x N links of a 21-vehicle snapshot once per step. In numpy that is some
 40 small array operations whose fixed cost (about 1 us each) dominates; these kernels fuse them
-into one compiled pass. They are not a second model: each one is tested equal (to 1e-9 relative)
-to the numpy reference built from :func:`cv2x_marl.sim.channel.winner_b1_db` and
-:func:`cv2x_marl.sim.evaluate.mean_rx_dbm`, and to the simulator's own link outcomes
+into one compiled pass. They are not a second model. :func:`winner_b1_pair_db` is the one WINNER+
+B1 implementation (the simulator calls it through :func:`cv2x_marl.sim.channel.winner_b1_db`) and
+is tested against the numpy LOS / NLOS / free-space formulas of ``channel`` and hand values
+(``tests/sim/test_channel.py``); :func:`snapshot_links` is tested equal (to 1e-9 relative) to the
+numpy composition in :class:`cv2x_marl.sim.evaluate.SnapshotLinks` (``compiled=False``: received
+power, interference sums, PER interpolation) and to the simulator's own link outcomes
 (``tests/sim/test_evaluate.py``). ``NUMBA_DISABLE_JIT=1`` runs them as plain Python for debugging.
 
 Compiled code is cached on disk (``cache=True``): the first call in a fresh checkout compiles

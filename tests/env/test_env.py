@@ -140,6 +140,15 @@ def test_bad_actions_and_arguments() -> None:
         e.step({**acts, "vehicle_4": np.zeros(3)})
     with pytest.raises(ValueError, match="vehicle_6 must have shape"):
         e.step({**acts, "vehicle_6": np.zeros(1)})
+    with pytest.raises(ValueError, match="vehicle_5 must be numeric"):
+        e.step({**acts, "vehicle_5": "left"})
+    # any array with two numbers is an action: (1, 2) rows, one agent or all of them
+    e.reset(seed=0)
+    _, r_flat, *_ = e.step(acts)
+    e.reset(seed=0)
+    _, r_row, *_ = e.step({**acts, "vehicle_7": np.array([[0.0, 0.0]])})
+    _, r_all, *_ = e.step({a: np.zeros((2, 1)) for a in e.agents})
+    assert r_row["vehicle_7"] == pytest.approx(r_all["vehicle_7"]) == pytest.approx(r_flat["vehicle_7"])
     with pytest.raises(TypeError, match="dict agent -> action"):
         e.step([np.zeros(2)] * 21)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="max_step_m"):

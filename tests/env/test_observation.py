@@ -100,3 +100,12 @@ def test_link_summaries_match_the_utility_module() -> None:
     np.testing.assert_allclose(prr, np.nan_to_num(per_node_prr(p, target)), rtol=1e-12)
     np.testing.assert_allclose(jain, np.nan_to_num(jain_fairness(p, target)), rtol=1e-12)
     assert u[4] == 0.0 and prr[4] == 0.0 and jain[5] == 0.0 and u[5] == pytest.approx(np.log(1e-3) * target[5].sum())
+
+
+def test_layout_and_inputs_are_checked() -> None:
+    pos = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 50.0], [100.0, 0.0]])
+    args = (pos, np.array([5, 7, 5, 5]), np.ones((4, 4), bool), np.zeros((4, 2)), 0.0)
+    with pytest.raises(ValueError, match=r"n_neighbours must be in 1 \.\. 3 for 4 vehicles, got 4"):
+        build_observations(ObservationLayout(4, 10.0, 200.0, 60.0), *args)
+    with pytest.raises(ValueError, match="same 4 vehicles"):
+        build_observations(ObservationLayout(3, 10.0, 200.0, 60.0), *args, geometry=pair_geometry(pos[:3]))

@@ -95,3 +95,13 @@ def test_snapshot_links_match_the_simulators_own_links(name: str) -> None:
         np.testing.assert_allclose(p[links["tx"][ok], links["rx"][ok]], links["p_success"][ok], rtol=1e-9, atol=1e-12)
     n = snap.positions_m.shape[0]
     assert ok.sum() > 0.8 * n * (n - 1)  # nearly every ordered pair is a decoded link
+
+
+def test_wrong_vehicle_count_is_rejected() -> None:
+    cfg = from_dict({"sim": {"warmup_subframes": 100}}, preset("paper"))
+    snap = Simulator(cfg).reset(seed=0)
+    for compiled in (True, False):
+        sl = SnapshotLinks(cfg, snap, compiled=compiled)
+        for bad in (snap.positions_m[:18], np.zeros((51, 2)), snap.positions_m.ravel()):
+            with pytest.raises(ValueError, match=r"positions_m must have shape \(21, 2\)"):
+                sl.success(bad)
