@@ -15,10 +15,11 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
+
+from cv2x_marl.io import write_json  # noqa: E402
 
 
 def agent_steps_per_s(env: Any, steps: int) -> float:
@@ -69,9 +70,7 @@ def main() -> None:
     for mode in ("snapshot_n21", "traffic_n21"):
         for n in (3, 21):
             print(f"ratio {mode} / mpe2 simple_spread N={n}: {rows[mode] / rows[f'mpe2_simple_spread_n{n}']:.2f}")
-    out = Path("results/bench_env.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    write_json(Path("results/bench_env.json"), rows)
 
 
 if __name__ == "__main__":

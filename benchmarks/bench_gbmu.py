@@ -11,12 +11,12 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from cv2x_marl.config import preset  # noqa: E402
 from cv2x_marl.experiments.gbmu_study import _snapshots, gbmu_inputs  # noqa: E402
+from cv2x_marl.io import write_json  # noqa: E402
 from cv2x_marl.policies.gbmu import climb, gbmu_direction, oracle_direction  # noqa: E402
 from cv2x_marl.regression import TwoDistanceModel  # noqa: E402
 from cv2x_marl.rng import derive_seeds  # noqa: E402
@@ -44,9 +44,7 @@ def main() -> None:
         rows[f"{name}_144x10000_s"] = time.perf_counter() - t1
     for k, v in rows.items():
         print(f"{k}: {v:.3f}")
-    out = Path("results/bench_gbmu.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    write_json(Path("results/bench_gbmu.json"), rows)
 
 
 if __name__ == "__main__":

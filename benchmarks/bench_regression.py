@@ -10,13 +10,13 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from cv2x_marl.config import preset  # noqa: E402
 from cv2x_marl.experiments.dataset import build_dataset, run_fit  # noqa: E402
+from cv2x_marl.io import write_json  # noqa: E402
 
 
 def main() -> None:
@@ -37,9 +37,7 @@ def main() -> None:
     rows["dataset_plus_linear_fit_s"] = rows["dataset_s"] + rows["fit_linear_s"]
     for k, v in rows.items():
         print(f"{k}: {v:.3f}" if isinstance(v, float) else f"{k}: {v}")
-    out = Path("results/bench_regression.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    write_json(Path("results/bench_regression.json"), rows)
 
 
 if __name__ == "__main__":

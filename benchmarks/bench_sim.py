@@ -12,7 +12,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -20,6 +19,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from cv2x_marl.config import apply_overrides, preset  # noqa: E402
+from cv2x_marl.io import write_json  # noqa: E402
 from cv2x_marl.sim import Simulator  # noqa: E402
 
 
@@ -108,8 +108,7 @@ def main() -> None:
         "processor": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine, "rows": rows}, indent=2) + "\n")
+    write_json(args.out, {"machine": machine, "rows": rows})
     print(f"\nwrote {args.out}")
 
 

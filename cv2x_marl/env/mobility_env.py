@@ -280,17 +280,16 @@ class MobilityEnv(ParallelEnv):
 
     def _utilities(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
         """[N] eq. 12 utility of each agent's broadcast (per receiver with ``normalise_reward``)."""
-        u = kernels.link_summaries(p, target, self.p_min)[0]
-        if self.normalise_reward:
-            u = u / np.maximum(target.sum(axis=1), 1)
-        return u
+        return self._normalised(kernels.link_summaries(p, target, self.p_min)[0], target)
+
+    def _normalised(self, u: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
+        return u / np.maximum(target.sum(axis=1), 1) if self.normalise_reward else u
 
     def _summarise(self) -> None:
         """Utility (eq. 12), PRR and Jain's index of every agent from the current links."""
-        u, self.prr, self.jain = kernels.link_summaries(self.p, self.target, self.p_min)
-        if self.normalise_reward:
-            u = u / np.maximum(self.target.sum(axis=1), 1)
-        self.u = u
+        summary = kernels.link_summaries(self.p, self.target, self.p_min)
+        self.prr, self.jain = summary[1], summary[2]
+        self.u = self._normalised(summary[0], self.target)
 
     def _rewards(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.reward_kind == "individual":

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cv2x_marl.sim.evaluate import PairGeometry, pair_geometry
+from cv2x_marl.sim.evaluate import PairGeometry, pair_geometry, row_index_table
 
 FloatArray = NDArray[np.float64]
 FEATURES = 7
@@ -51,14 +51,7 @@ class ObservationLayout:
 
 def co_channel_table(resource: NDArray[np.int64]) -> NDArray[np.int64]:
     """[N, G] the other vehicles on each vehicle's resource, padded with -1 (G = largest group - 1)."""
-    n = resource.shape[0]
-    co = (resource[:, None] == resource[None, :]) & ~np.eye(n, dtype=bool)
-    g = max(int(co.sum(axis=1).max()), 1)
-    table = np.full((n, g), -1, dtype=np.int64)
-    rows, cols = np.nonzero(co)
-    rank = np.arange(rows.size) - np.searchsorted(rows, rows)
-    table[rows, rank] = cols
-    return table
+    return row_index_table((resource[:, None] == resource[None, :]) & ~np.eye(resource.shape[0], dtype=bool))
 
 
 @njit(cache=True)

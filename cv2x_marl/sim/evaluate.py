@@ -184,6 +184,15 @@ class MoverLinks:
         return np.where(self.target, p, 0.0)
 
 
+def row_index_table(mask: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """[N, G] the column indices of the True entries of each row of ``mask`` [N, M], in order,
+    padded with -1 (G = the largest row count, at least 1): a sparse row table for the kernels."""
+    rows, cols = np.nonzero(mask)
+    table = np.full((mask.shape[0], max(int(mask.sum(axis=1).max(initial=0)), 1)), -1, dtype=np.int64)
+    table[rows, np.arange(rows.size) - np.searchsorted(rows, rows)] = cols  # rank within the row
+    return table
+
+
 class PairGeometry(NamedTuple):
     """Displacements and squared distances of every ordered vehicle pair (shared per step).
 
@@ -268,13 +277,8 @@ class SnapshotLinks:
 
     def _kernel_arguments(self, wb1: FloatArray) -> tuple:
         w = self.interference_weight
-        g = max(int((w > 0).sum(axis=1).max()), 1)
-        idx = np.full((self.n, g), -1, dtype=np.int64)
-        val = np.zeros((self.n, g))
-        rows, cols = np.nonzero(w)
-        rank = np.arange(rows.size) - np.searchsorted(rows, rows)
-        idx[rows, rank] = cols
-        val[rows, rank] = w[rows, cols]
+        idx = row_index_table(w > 0)
+        val = np.where(idx >= 0, w[np.arange(self.n)[:, None], idx], 0.0)
         cfg = self.config
         period = self.road.periodic_box_m if self._wrap_road is not None else np.full(2, np.inf)
         return (

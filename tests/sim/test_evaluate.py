@@ -11,7 +11,7 @@ import pytest
 
 from cv2x_marl.config import from_dict, preset
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks, pair_geometry
+from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks, pair_geometry, row_index_table
 from cv2x_marl.sim.road import Road
 
 CASES: dict[str, tuple[str, dict[str, Any], str]] = {
@@ -105,3 +105,9 @@ def test_wrong_vehicle_count_is_rejected() -> None:
         for bad in (snap.positions_m[:18], np.zeros((51, 2)), snap.positions_m.ravel()):
             with pytest.raises(ValueError, match=r"positions_m must have shape \(21, 2\)"):
                 sl.success(bad)
+
+
+def test_row_index_table() -> None:
+    mask = np.array([[False, True, False, True], [False, False, False, False], [True, True, True, False]])
+    assert row_index_table(mask).tolist() == [[1, 3, -1], [-1, -1, -1], [0, 1, 2]]
+    assert row_index_table(np.zeros((2, 2), bool)).tolist() == [[-1], [-1]]
