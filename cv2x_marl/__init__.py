@@ -14,12 +14,16 @@ def _register_envs() -> None:
         import pettingzoo
     except ImportError:  # the train extra is not installed: nothing to register
         return
-    for kind, entry in (("parallel", "cv2x_marl.env:parallel_env"), ("aec", "cv2x_marl.env:env")):
-        registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
-        if "cv2x/Mobility-v0" not in registry:
-            pettingzoo.register(kind, "cv2x/Mobility-v0", entry_point=entry)
-    if "cv2x/SingleMover-v0" not in gymnasium.registry:
-        gymnasium.register(id="cv2x/SingleMover-v0", entry_point="cv2x_marl.env.single:SingleMoverEnv")
+    for version in ("v0", "v1"):
+        env_id = f"cv2x/Mobility-{version}"
+        suffix = "" if version == "v0" else "_v1"
+        for kind, entry in (("parallel", f"cv2x_marl.env:parallel_env{suffix}"), ("aec", f"cv2x_marl.env:env{suffix}")):
+            registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
+            if env_id not in registry:
+                pettingzoo.register(kind, env_id, entry_point=entry)
+    for version, cls in (("v0", "SingleMoverEnv"), ("v1", "SingleMoverEnvV1")):
+        if f"cv2x/SingleMover-{version}" not in gymnasium.registry:
+            gymnasium.register(id=f"cv2x/SingleMover-{version}", entry_point=f"cv2x_marl.env.single:{cls}")
 
 
 _register_envs()

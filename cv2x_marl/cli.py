@@ -22,6 +22,9 @@ from cv2x_marl.experiments.dataset import DatasetError
 from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
+#: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
+EVAL_ENV_IDS = ("cv2x/SingleMover-v1", "cv2x/Mobility-v1", "cv2x/SingleMover-v0", "cv2x/Mobility-v0")
+
 
 def _print_json(data: object) -> None:
     json.dump(data, sys.stdout, indent=2)
@@ -172,15 +175,18 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         model_path=str(args.model),
         delta=args.delta,
         progress=not args.quiet,
+        vs_optimum=args.vs_optimum,
     )
     if args.json:
         _print_json(summary)
     else:
+        share = f", {summary['share_of_optimum']:.1%} of the optimum's gain" if args.vs_optimum else ""
         print(
-            f"{args.policy} on {args.env}, {summary['episodes']} episodes x {summary['movers_per_episode']} movers: "
+            f"{args.policy} on {summary['env']}, {summary['episodes']} episodes x "
+            f"{summary['movers_per_episode']} movers: "
             f"utility gain {summary['mean_utility_gain']:+.1%}, PRR gain {summary['mean_prr_gain']:+.1%}, "
             f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
-            f"return {summary['mean_return']:.1f}"
+            f"return {summary['mean_return']:.1f}{share}"
         )
     return 0
 
@@ -289,8 +295,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_gbmu)
 
     p = sub.add_parser("evaluate", help="evaluate a mover policy on the env (same episodes for the same seed)")
-    p.add_argument("--env", default="cv2x/SingleMover-v0", choices=["cv2x/SingleMover-v0", "cv2x/Mobility-v0"])
-    p.add_argument("--policy", default="gbmu", help="static | random | gbmu | greedy | oracle | ppo:PATH")
+    p.add_argument(
+        "--env",
+        default=None,
+        choices=list(EVAL_ENV_IDS),
+        help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v1",
+    )
+    p.add_argument(
+        "--policy", default="gbmu", help="static | random | gbmu | greedy | oracle | planner | optimum | ppo:PATH"
+    )
+    p.add_argument(
+        "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"
+    )
     p.add_argument("--episodes", type=int, default=144)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--preset", default="paper", choices=sorted(PRESETS))
@@ -305,7 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
-    p.add_argument("--env", default=None, choices=["cv2x/SingleMover-v0", "cv2x/Mobility-v0"])
+    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS))
     p.add_argument("--algo", default="ppo")
     p.add_argument("--timesteps", type=int, default=200_000, help="total agent-steps")
     p.add_argument("--seed", type=int, default=0)

@@ -4,8 +4,11 @@
     raw_env(**kw)       its AEC version (``parallel_to_aec_wrapper``), unwrapped
     env(**kw)           the AEC version with PettingZoo's standard wrapper (order enforcing)
 
-``import cv2x_marl`` registers ``cv2x/Mobility-v0`` (``pettingzoo.make("parallel", ...)`` and
-``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium env ``cv2x/SingleMover-v0``.
+    parallel_env_v1 / env_v1   the same for ``cv2x/Mobility-v1`` (observation version 1, improvement rewards)
+
+``import cv2x_marl`` registers ``cv2x/Mobility-v0`` and ``-v1`` (``pettingzoo.make("parallel", ...)``
+and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium envs ``cv2x/SingleMover-v0``
+and ``-v1``.
 """
 
 from __future__ import annotations
@@ -14,13 +17,23 @@ from typing import Any
 
 from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
 
-from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.mobility_env import MobilityEnv, mobility_v1
 from cv2x_marl.env.observation import ObservationLayout
 
 
 def parallel_env(**kwargs: Any) -> MobilityEnv:
     """The ParallelEnv; keyword arguments as :class:`MobilityEnv`."""
     return MobilityEnv(**kwargs)
+
+
+def parallel_env_v1(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v1``: the ParallelEnv with observation version 1 and improvement rewards."""
+    return mobility_v1(**kwargs)
+
+
+def env_v1(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v1`` with the order-enforcing wrapper."""
+    return parallel_to_aec(mobility_v1(**kwargs))
 
 
 def raw_env(**kwargs: Any) -> Any:
@@ -33,4 +46,4 @@ def env(**kwargs: Any) -> Any:
     return parallel_to_aec(MobilityEnv(**kwargs))
 
 
-__all__ = ["MobilityEnv", "ObservationLayout", "env", "parallel_env", "raw_env"]
+__all__ = ["MobilityEnv", "ObservationLayout", "env", "env_v1", "parallel_env", "parallel_env_v1", "raw_env"]

@@ -9,6 +9,7 @@ outcomes in ``traffic`` mode), never with the regression model.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -18,7 +19,7 @@ from pettingzoo import ParallelEnv
 
 from cv2x_marl.config import ScenarioConfig, apply_overrides
 from cv2x_marl.config import preset as load_preset
-from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
+from cv2x_marl.env.observation import OWN_V1, VERSIONS, ObservationLayout, build_observations, co_channel_table
 from cv2x_marl.sim import Simulator, kernels
 from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
@@ -26,6 +27,9 @@ from cv2x_marl.sim.road import Road
 
 MODES = ("snapshot", "traffic")
 REWARDS = ("individual", "team", "mixed")
+#: ``utility``: the reward of a step is the utility after it (v0); ``improvement``: its change over
+#: the step, a potential-based shaping whose episode sum is final minus start utility
+REWARD_FORMS = ("utility", "improvement")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 
@@ -59,6 +63,14 @@ class MobilityEnv(ParallelEnv):
         roi: keep vehicles inside the region of interest (the road box).
         truth_los: LOS state of moved links (``snapshot``, ``geometry``, ``always``).
         render_mode: ``rgb_array``, ``human`` or None.
+        observation: observation version (0 or 1, see :mod:`cv2x_marl.env.observation`).
+        privileged: version 1 only: also observe the true success of every neighbour link (for
+            upper-bound studies; a vehicle cannot know it).
+        reward_form: ``utility`` (the reward is the utility after the step) or ``improvement``
+            (its change over the step: the episode's rewards sum to final minus start).
+        settle_steps: the last ``settle_steps`` steps of an episode ignore the actions (vehicles
+            stay where they are, the reward counts where they ended up).
+        model: the two-distance model of observation version 1 (``paper-table2`` or a model file).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -87,6 +99,11 @@ class MobilityEnv(ParallelEnv):
         roi: bool = False,
         truth_los: str = "snapshot",
         render_mode: str | None = None,
+        observation: int = 0,
+        privileged: bool = False,
+        reward_form: str = "utility",
+        settle_steps: int = 0,
+        model: str = "paper-table2",
     ) -> None:
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
@@ -100,6 +117,17 @@ class MobilityEnv(ParallelEnv):
         _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
         _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
         _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
+        _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1", observation)
+        _check(
+            "privileged", isinstance(privileged, bool) and (observation >= 1 or not privileged), "bool (v1)", privileged
+        )
+        _check("reward_form", reward_form in REWARD_FORMS, " | ".join(REWARD_FORMS), reward_form)
+        _check(
+            "settle_steps",
+            isinstance(settle_steps, int) and 0 <= settle_steps < max_cycles,
+            "integer in [0, max_cycles)",
+            settle_steps,
+        )
         self.config = cfg
         self.n = cfg.n_vehicles
         if n_neighbours is None:
@@ -131,7 +159,21 @@ class MobilityEnv(ParallelEnv):
         self._geometry: PairGeometry | None = None
         box = road.box_m
         self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
-        self.layout = ObservationLayout(n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m)
+        self.layout = ObservationLayout(
+            n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
+        )
+        self.reward_form = reward_form
+        self.settle_steps = settle_steps
+        self.model_name = model
+        self.model: Any = None
+        if observation >= 1:
+            from cv2x_marl.experiments.dataset import load_model
+
+            try:
+                self.model = load_model(Path(model))
+            except Exception as exc:
+                raise ValueError(f"invalid env argument model={model!r}: {exc}") from exc
+        self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
@@ -148,9 +190,20 @@ class MobilityEnv(ParallelEnv):
 
     # ------------------------------------------------------------------- reset
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
-        if seed is None:
-            seed = int(np.random.SeedSequence().generate_state(1)[0])
-        self.seed_used = int(seed)
+        """Start an episode. Seeding follows Gymnasium: ``reset(seed=s)`` makes this episode a function of
+        ``s`` and reseeds the env's own generator with ``s``; a later ``reset()`` draws its episode seed
+        from that generator, so the same seeded first reset gives the same sequence of episodes.
+        Without any seed the generator starts from OS entropy."""
+        if seed is not None:
+            if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+                raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
+            self._np_random = np.random.default_rng(int(seed))
+            episode_seed = int(seed)
+        else:
+            if self._np_random is None:
+                self._np_random = np.random.default_rng()
+            episode_seed = int(self._np_random.integers(0, 2**31 - 1))
+        self.seed_used = episode_seed
         self.sim = Simulator(self.config)
         snap = self.sim.reset(self.seed_used)
         self.snapshot = snap
@@ -160,6 +213,7 @@ class MobilityEnv(ParallelEnv):
         if self.mode == "snapshot":
             self.links = SnapshotLinks(self.config, snap, self.truth_los)
         self.offsets_m = np.zeros((self.n, 2))
+        self._mover_row: Any = None
         self._co_resource = self.resource.copy()
         self._co_table: NDArray[np.int64] | None = None
         self.t = 0
@@ -170,6 +224,9 @@ class MobilityEnv(ParallelEnv):
         self._summarise()
         self.u0 = self.u.copy()
         self.prr0 = self.prr.copy()
+        self._base_prev = self._rewards(self.u).copy()
+        if self.layout.version >= 1:
+            self._reset_v1_state()
         obs = self._observations()
         infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
         return obs, infos
@@ -181,6 +238,8 @@ class MobilityEnv(ParallelEnv):
         act = self._decode(actions)
         clipped: NDArray[np.bool_] = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
         offsets = np.minimum(np.maximum(act, -1.0), 1.0) * self._step_scale_m
+        if self.t >= self.max_cycles - self.settle_steps:
+            offsets = np.zeros_like(offsets)  # settle phase: vehicles stay where they are
         if self.mode == "snapshot":
             new = self._bound(self.positions_m + offsets)
             applied = new - self.positions_m
@@ -200,7 +259,9 @@ class MobilityEnv(ParallelEnv):
         self.tracks.append(self.positions_m.copy())
         self.p, self.target = self._link_success()
         self._summarise()
-        rewards_arr = self._rewards(self.u)
+        rewards_arr = self._step_rewards()
+        if self.layout.version >= 1:
+            self._update_v1_state()
         done = self.t >= self.max_cycles
         agents = self.agents
         obs = self._observations()
@@ -214,6 +275,85 @@ class MobilityEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return obs, rewards, terms, truncs, infos
+
+    # ------------------------------------------------------- one-mover path
+    @property
+    def fast_mover(self) -> int | None:
+        """The vehicle whose step :meth:`step_mover` computes alone, or None when it does not apply
+        (it needs snapshot mode, one mover and the individual reward)."""
+        movers = np.flatnonzero(self.mover_mask)
+        ok = self.mode == "snapshot" and movers.size == 1 and self.reward_kind == "individual"
+        return int(movers[0]) if ok else None
+
+    def step_mover(self, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
+        """One step in which only :attr:`fast_mover` moves: its observation, reward, truncation, info.
+
+        What :meth:`step` returns for that vehicle, bit for bit (tested), computed for it alone:
+        its links through :meth:`SnapshotLinks.mover_row` (the interference on them does not change
+        while the others stand still), its row of the pair geometry and its observation. The other
+        vehicles' rewards and observations are not computed, so after this call use only
+        ``step_mover`` until the next :meth:`reset` (``SingleMover`` envs do).
+        """
+        i = self.fast_mover
+        if i is None:
+            raise RuntimeError("step_mover needs snapshot mode, exactly one mover and reward='individual'")
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode: call reset()")
+        name = self.possible_agents[i]
+        try:
+            act = np.asarray(action, dtype=np.float64).reshape(2)
+        except (ValueError, TypeError):
+            raise ValueError(f"action of {name} must be numeric with shape (2,), got {action!r}") from None
+        if not np.isfinite(act).all():
+            raise ValueError(f"action of {name} is not finite: {act.tolist()}")
+        clipped = bool(((act < -1.0) | (act > 1.0)).any())
+        offset = np.minimum(np.maximum(act, -1.0), 1.0) * self.max_step_m
+        if self.t >= self.max_cycles - self.settle_steps:
+            offset = np.zeros(2)
+        old = self.positions_m[i].copy()
+        moved = self.positions_m.copy()
+        moved[i] = old + offset
+        self.positions_m[i] = self._bound(moved)[i]
+        applied = self.positions_m[i] - old
+        self.t += 1
+        self.tracks.append(self.positions_m.copy())
+        if self._mover_row is None or self._mover_row.mover != i:
+            self._mover_row = self.links.mover_row(i, self.positions_m)
+        p_row = self._mover_row.success(self.positions_m[i : i + 1])
+        self.p[i] = p_row[0]
+        summary = kernels.link_summaries(p_row, self.target[i : i + 1], self.p_min)
+        self.u[i] = self._normalised(summary[0], self.target[i : i + 1])[0]
+        self.prr[i], self.jain[i] = summary[1, 0], summary[2, 0]
+        self._move_geometry(i)
+        reward = float(self._step_rewards()[i])
+        if self.layout.version >= 1:
+            self._update_v1_state()
+        done = self.t >= self.max_cycles
+        rows = np.array([i], dtype=np.int64)
+        obs = self._build(rows)
+        if self.layout.version >= 1:
+            lo, clip = self.layout.own_v1_offset, self.layout.obs_clip
+            obs[:, lo : lo + OWN_V1] = np.clip(self._own_v1(rows), -clip, clip)
+        vals = (self.u[i], self.u0[i], self.prr[i], self.prr0[i], self.jain[i], applied[0], applied[1], clipped)
+        info = dict(zip(INFO_KEYS, (float(v) for v in vals), strict=True))
+        if done:
+            self.agents = []
+            self._live = set()
+        return obs[0], reward, done, info
+
+    def _move_geometry(self, i: int) -> None:
+        """Update row and column ``i`` of the pair geometry after vehicle ``i`` moved."""
+        assert self._geometry is not None
+        disp, dist2 = self._geometry
+        d = (self.positions_m - self.positions_m[i]).T  # [2, N]: j relative to i
+        if self._wrap_road is not None:
+            self._wrap_road.minimum_image(d.T)
+        d[:, i] = 0.0
+        disp[:, i, :] = d
+        disp[:, :, i] = -d
+        r2 = d[0] * d[0] + d[1] * d[1]
+        dist2[i, :] = r2
+        dist2[:, i] = r2
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
@@ -299,12 +439,68 @@ class MobilityEnv(ParallelEnv):
             return team
         return self.local_ratio * u + (1.0 - self.local_ratio) * team
 
-    def _observations(self) -> dict[str, NDArray[np.float32]]:
+    def _step_rewards(self) -> NDArray[np.float64]:
+        """Rewards of the step just taken (``reward`` combination, then ``reward_form``)."""
+        base = self._rewards(self.u)
+        if self.reward_form == "utility":
+            return base
+        out = base - self._base_prev
+        self._base_prev = base.copy()  # base may be self.u, which the one-mover path updates in place
+        return out
+
+    # ------------------------------------------------------- observation v1
+    def _per_receiver(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Utilities per target receiver (the scale of the v1 observation), whatever ``normalise_reward``."""
+        return u.copy() if self.normalise_reward else u / np.maximum(self.target.sum(axis=1), 1)
+
+    def _reset_v1_state(self) -> None:
+        from cv2x_marl.policies.optimum import model_plan, reachable_set
+        from cv2x_marl.policies.scripted import decode_observations
+
+        self._u_now = self._per_receiver(self.u)
+        self._u_prev = self._u_now.copy()
+        self._u_start = self._u_now.copy()
+        self._u_best = self._u_now.copy()
+        self._best_m = self.positions_m.copy()
+        self.plan_m = self.positions_m.copy()
+        movers = np.flatnonzero(self.mover_mask)
+        if self.mode == "snapshot" and movers.size:
+            v0 = self._build(movers)[:, : self.layout.v0_size]
+            reaches = [reachable_set(self, int(i)) for i in movers]
+            inputs = decode_observations(v0, self.layout)
+            self.plan_m[movers] = model_plan(inputs, self.positions_m[movers], reaches, self.model, self.p_min)
+
+    def _update_v1_state(self) -> None:
+        self._u_prev = self._u_now
+        self._u_now = self._per_receiver(self.u)
+        better = self._u_now > self._u_best
+        self._u_best = np.where(better, self._u_now, self._u_best)
+        self._best_m[better] = self.positions_m[better]
+
+    def _own_v1(self, rows: NDArray[np.int64]) -> NDArray[np.float64]:
+        """[A, OWN_V1] the own v1 entries of agents ``rows`` (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`)."""
+        inv = 1.0 / self.layout.scale_m
+        pos = self.positions_m[rows]
+        reach = max(self.max_cycles - self.settle_steps - self.t, 0) * self.max_step_m
+        return np.column_stack(
+            [
+                self._u_now[rows],
+                10.0 * (self._u_now[rows] - self._u_prev[rows]),
+                self._u_now[rows] - self._u_start[rows],
+                self._u_best[rows] - self._u_now[rows],
+                (self._best_m[rows] - pos) * inv,
+                (self.plan_m[rows] - pos) * inv,
+                np.full(rows.size, reach * inv),
+            ]
+        )
+
+    def _build(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float32]:
+        """[A, size] observations of agents ``rows`` (all when None)."""
         drift = self.positions_m - self.start_m
         if self._co_table is None or (self.mode == "traffic" and not np.array_equal(self._co_resource, self.resource)):
             self._co_resource = self.resource.copy()
             self._co_table = co_channel_table(self.resource)
-        obs = build_observations(
+        return build_observations(
             self.layout,
             self.positions_m,
             self.resource,
@@ -313,7 +509,16 @@ class MobilityEnv(ParallelEnv):
             self.t / self.max_cycles,
             self._co_table,
             self._geometry,
+            rows,
+            self.model,
+            self.p if self.layout.privileged else None,
         )
+
+    def _observations(self) -> dict[str, NDArray[np.float32]]:
+        obs = self._build()
+        if self.layout.version >= 1:
+            lo, clip = self.layout.own_v1_offset, self.layout.obs_clip
+            obs[:, lo : lo + OWN_V1] = np.clip(self._own_v1(np.arange(self.n)), -clip, clip)
         return dict(zip(self.agents, obs, strict=True))
 
     def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
@@ -359,3 +564,22 @@ class MobilityEnv(ParallelEnv):
 
             plt.close(self._fig)
             self._fig = None
+
+
+#: what ``cv2x/Mobility-v1`` and ``cv2x/SingleMover-v1`` change from the v0 defaults (any can be overridden)
+V1_DEFAULTS: dict[str, Any] = {"observation": 1, "reward_form": "improvement", "normalise_reward": True}
+
+
+class MobilityEnvV1(MobilityEnv):
+    """``cv2x/Mobility-v1``: :class:`MobilityEnv` with :data:`V1_DEFAULTS` (observation version 1,
+    improvement rewards per target receiver); keyword arguments as :class:`MobilityEnv`."""
+
+    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v1"}
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**{**V1_DEFAULTS, **kwargs})
+
+
+def mobility_v1(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v1`` (:class:`MobilityEnvV1`)."""
+    return MobilityEnvV1(**kwargs)

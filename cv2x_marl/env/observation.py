@@ -12,12 +12,24 @@ then ``OWN = 5`` own features), every length in units of ``scale_m``:
     [K * F + 2, K * F + 3]  own drift from the episode's start position (x, y)
     [K * F + 4]             elapsed share of the episode, t / max_cycles
 
+Version 1 (``cv2x/Mobility-v1``, ``cv2x/SingleMover-v1``) appends, after these ``7 K + 5``
+values (so the v0 part and GBMU's decoding stay as they are):
+
+    [7K + 5 + k]            model-predicted success of the link to neighbour k (eq. 15 two-distance
+                            model at d_ik, l_k, NSV_k: what GBMU's steering model predicts)
+    [8K + 5 + k]            (``privileged`` only) the true expected success P_ik of the link model
+    then ``OWN_V1 = 9`` own values (see :data:`OWN_V1_NAMES`): the mover's measured utility and
+    its change, the best utility so far and where it was, the model's best reachable position
+    and how far the mover can still go.
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -28,6 +40,21 @@ from cv2x_marl.sim.evaluate import PairGeometry, pair_geometry, row_index_table
 FloatArray = NDArray[np.float64]
 FEATURES = 7
 OWN = 5
+#: the own entries appended by observation version 1, in order (lengths in units of ``scale_m``;
+#: utilities per target receiver, i.e. the mean of ``ln max(P, p_min)`` over the targets)
+OWN_V1_NAMES = (
+    "utility",  # own measured utility now
+    "utility_change_x10",  # 10 x (now - previous step)
+    "utility_gain",  # now - start of the episode
+    "best_minus_now",  # best utility seen this episode - now (>= 0)
+    "best_dx",  # position where the best was seen, relative to now (x, y)
+    "best_dy",
+    "plan_dx",  # the model's best reachable position, relative to now (x, y)
+    "plan_dy",
+    "reach",  # steps left x max_step_m: how far the mover can still go
+)
+OWN_V1 = len(OWN_V1_NAMES)
+VERSIONS = (0, 1)
 
 
 @dataclass(frozen=True)
@@ -39,10 +66,44 @@ class ObservationLayout:
     region_m: float
     interferer_range_m: float
     obs_clip: float = 10.0
+    version: int = 0
+    privileged: bool = False
+
+    @property
+    def per_neighbour_extra(self) -> int:
+        """Values per neighbour after the v0 block: model P (v1), true P (v1, privileged)."""
+        return 0 if self.version == 0 else 1 + int(self.privileged)
+
+    @property
+    def v0_size(self) -> int:
+        return self.n_neighbours * FEATURES + OWN
+
+    @property
+    def own_v1_offset(self) -> int:
+        """Index of the first :data:`OWN_V1_NAMES` entry (version 1)."""
+        return self.v0_size + self.n_neighbours * self.per_neighbour_extra
 
     @property
     def size(self) -> int:
-        return self.n_neighbours * FEATURES + OWN
+        return self.own_v1_offset + (OWN_V1 if self.version >= 1 else 0)
+
+    def model_success(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., K] the model-predicted success of each neighbour link (version 1)."""
+        if self.version < 1:
+            raise ValueError("model-predicted success is part of observation version 1")
+        k0 = self.v0_size
+        return obs[..., k0 : k0 + self.n_neighbours]
+
+    def true_success(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., K] the true success of each neighbour link (version 1, ``privileged``)."""
+        if not self.privileged:
+            raise ValueError("true link success is observed only with privileged=True")
+        k0 = self.v0_size + self.n_neighbours
+        return obs[..., k0 : k0 + self.n_neighbours]
+
+    def own_v1(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., OWN_V1] the own entries of version 1 (:data:`OWN_V1_NAMES`)."""
+        return obs[..., self.own_v1_offset : self.own_v1_offset + OWN_V1]
 
     def neighbours(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., K, F] view of the per-neighbour block."""
@@ -68,23 +129,34 @@ def _observation_kernel(
     region_m: float,
     interferer_range_m: float,
     obs_clip: float,
+    rows: NDArray[np.int64],
+    size: int,
+    extra: int,
+    alpha: FloatArray,
+    beta: FloatArray,
+    gamma: FloatArray,
+    logistic: bool,
+    model_p_min: float,
+    p_true: FloatArray,
 ) -> NDArray[np.float32]:
     n = positions_m.shape[0]
-    size = k * FEATURES + OWN
-    out = np.zeros((n, size), dtype=np.float32)
-    dist = np.sqrt(dist2_m2)
-    for i in range(n):
-        dist[i, i] = np.inf  # a vehicle is not its own neighbour
+    out = np.zeros((rows.shape[0], size), dtype=np.float32)
     inv = 1.0 / scale_m
     g_max = co_table.shape[1]
-    for i in range(n):
-        order = np.argsort(dist[i], kind="mergesort")  # stable: ties keep the index order
+    cap = alpha.shape[0] - 1
+    dist_i = np.empty(n)
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        for j in range(n):
+            dist_i[j] = math.sqrt(dist2_m2[i, j])
+        dist_i[i] = np.inf  # a vehicle is not its own neighbour
+        order = np.argsort(dist_i, kind="mergesort")  # stable: ties keep the index order
         for kk in range(k):
             j = order[kk]
             base = kk * FEATURES
-            out[i, base + 0] = disp_m[0, i, j] * inv
-            out[i, base + 1] = disp_m[1, i, j] * inv
-            out[i, base + 2] = 1.0 if target[i, j] else 0.0
+            out[r, base + 0] = disp_m[0, i, j] * inv
+            out[r, base + 1] = disp_m[1, i, j] * inv
+            out[r, base + 2] = 1.0 if target[i, j] else 0.0
             # NSV_j and the main interferer: i's co-channel vehicles c != j, seen from j
             nsv = 0
             best = np.inf
@@ -95,26 +167,37 @@ def _observation_kernel(
                     break
                 if c == j:
                     continue
-                d = dist[j, c]
+                d = math.sqrt(dist2_m2[j, c])
                 if d <= interferer_range_m:
                     nsv += 1
                 if d < best:
                     best = d
                     main = c
-            out[i, base + 3] = nsv
+            out[r, base + 3] = nsv
             if nsv > 0:
-                out[i, base + 4] = 1.0
-                out[i, base + 5] = disp_m[0, i, main] * inv
-                out[i, base + 6] = disp_m[1, i, main] * inv
+                out[r, base + 4] = 1.0
+                out[r, base + 5] = disp_m[0, i, main] * inv
+                out[r, base + 6] = disp_m[1, i, main] * inv
+            if extra > 0:  # version 1: the two-distance model's P (eq. 15), as GBMU reads it
+                l_m = max(best, 1e-3) if nsv > 0 else interferer_range_m
+                row = min(nsv, cap)
+                eta = alpha[row] * math.log10(max(dist_i[j], 1.0)) + beta[row] * math.log10(l_m) + gamma[row]
+                pm = 1.0 / (1.0 + math.exp(-eta)) if logistic else eta
+                out[r, k * FEATURES + OWN + kk] = min(max(pm, model_p_min), 1.0)
+                if extra > 1:
+                    out[r, k * FEATURES + OWN + k + kk] = p_true[i, j]
         own = k * FEATURES
-        out[i, own + 0] = positions_m[i, 0] / region_m
-        out[i, own + 1] = positions_m[i, 1] / region_m
-        out[i, own + 2] = drift_m[i, 0] * inv
-        out[i, own + 3] = drift_m[i, 1] * inv
-        out[i, own + 4] = t_fraction
+        out[r, own + 0] = positions_m[i, 0] / region_m
+        out[r, own + 1] = positions_m[i, 1] / region_m
+        out[r, own + 2] = drift_m[i, 0] * inv
+        out[r, own + 3] = drift_m[i, 1] * inv
+        out[r, own + 4] = t_fraction
         for f in range(size):
-            out[i, f] = min(max(out[i, f], -obs_clip), obs_clip)
+            out[r, f] = min(max(out[r, f], -obs_clip), obs_clip)
     return out
+
+
+_NO_MODEL = (np.zeros(1), np.zeros(1), np.zeros(1))
 
 
 def build_observations(
@@ -126,8 +209,15 @@ def build_observations(
     t_fraction: float,
     co_table: NDArray[np.int64] | None = None,
     geometry: PairGeometry | None = None,
+    rows: NDArray[np.int64] | None = None,
+    model: Any = None,
+    p_true: FloatArray | None = None,
 ) -> NDArray[np.float32]:
-    """[N, layout.size] observations of every vehicle (layout in the module docstring).
+    """[N, layout.size] observations of every vehicle (or of ``rows``; layout in the module docstring).
+
+    Version 1 layouts get their per-neighbour entries here (the model's P, the true P when
+    privileged); the own version-1 entries (:data:`OWN_V1_NAMES`) are state the env keeps and are
+    left 0 for it to fill.
 
     One compiled pass (numba) over the agents: a stable sort of each agent's row by distance, then
     the K nearest vehicles' features; ``tests/env/test_observation.py`` checks it against an
@@ -142,6 +232,9 @@ def build_observations(
         co_table: :func:`co_channel_table` of ``resource`` (computed when None).
         geometry: :func:`cv2x_marl.sim.evaluate.pair_geometry` of ``positions_m`` (computed when
             None; pass the road-folded one on a wrapping road).
+        rows: [A] the agents whose observations to build (default: all, in index order).
+        model: the :class:`~cv2x_marl.regression.model.TwoDistanceModel` (version 1).
+        p_true: [N(tx), N(rx)] true link success (version 1, privileged).
     """
     n = positions_m.shape[0]
     if not 1 <= layout.n_neighbours <= n - 1:
@@ -152,6 +245,14 @@ def build_observations(
         geometry = pair_geometry(positions_m)
     if geometry.dist2_m2.shape != (n, n) or target.shape != (n, n) or co_table.shape[0] != n:
         raise ValueError(f"geometry, target and co_table must describe the same {n} vehicles as positions_m")
+    if rows is None:
+        rows = np.arange(n, dtype=np.int64)
+    extra = layout.per_neighbour_extra
+    if extra and model is None:
+        raise ValueError("observation version 1 needs the two-distance model (model=...)")
+    if extra > 1 and (p_true is None or p_true.shape != (n, n)):
+        raise ValueError(f"a privileged layout needs p_true of shape ({n}, {n})")
+    alpha, beta, gamma = _NO_MODEL if model is None else (model.alpha, model.beta, model.gamma)
     return _observation_kernel(
         geometry.disp_m,
         geometry.dist2_m2,
@@ -165,4 +266,13 @@ def build_observations(
         layout.region_m,
         layout.interferer_range_m,
         layout.obs_clip,
+        np.ascontiguousarray(rows, dtype=np.int64),
+        layout.size,
+        extra,
+        np.ascontiguousarray(alpha, dtype=np.float64),
+        np.ascontiguousarray(beta, dtype=np.float64),
+        np.ascontiguousarray(gamma, dtype=np.float64),
+        model is not None and model.kind == "logistic",
+        1e-3 if model is None else float(model.p_min),
+        np.zeros((1, 1)) if p_true is None else np.ascontiguousarray(p_true, dtype=np.float64),
     )

@@ -20,20 +20,24 @@ from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
 from cv2x_marl.rng import derive_seeds
 
-ENV_IDS = ("cv2x/Mobility-v0", "cv2x/SingleMover-v0")
+ENV_IDS = ("cv2x/Mobility-v0", "cv2x/SingleMover-v0", "cv2x/Mobility-v1", "cv2x/SingleMover-v1")
 
 
 def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
-    """The parallel env behind either registered id (SingleMover: only vehicle 0 moves)."""
+    """The parallel env behind a registered id (SingleMover: only vehicle 0 moves; v1: V1_DEFAULTS)."""
+    from cv2x_marl.env.mobility_env import V1_DEFAULTS
+
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
-    if env_id == "cv2x/SingleMover-v0":
+    if env_id.startswith("cv2x/SingleMover"):
         kwargs = {**kwargs, "movers": [0]}
+    if env_id.endswith("-v1"):
+        kwargs = {**V1_DEFAULTS, **kwargs}
     return MobilityEnv(**kwargs)
 
 
 def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", delta: float = 100.0) -> Policy:
-    """``static | random | gbmu | greedy | oracle | ppo:PATH``."""
+    """``static | random | gbmu | greedy | oracle | planner | optimum | ppo:PATH``."""
     from cv2x_marl.experiments.dataset import load_model
     from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
 
@@ -46,9 +50,19 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", d
         return GbmuPolicy(model, env.layout, env.max_step_m, delta=delta, fairness=spec == "gbmu")
     if spec == "oracle":
         return OraclePolicy(env, delta=delta)
+    if spec == "optimum":
+        from cv2x_marl.policies.optimum import OptimumPolicy
+
+        return OptimumPolicy(env)
+    if spec == "planner":
+        from cv2x_marl.policies.optimum import PlannerPolicy
+
+        return PlannerPolicy(env, load_model(Path(model_path)))
     if spec.startswith("ppo:"):
         return PpoPolicy(Path(spec[4:]), env)
-    raise ValueError(f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, ppo:PATH")
+    raise ValueError(
+        f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, planner, optimum, ppo:PATH"
+    )
 
 
 class PpoPolicy:
@@ -93,8 +107,34 @@ class PpoPolicy:
         return dict(zip(agents, np.asarray(act, dtype=np.float32), strict=True))
 
 
+def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
+    """The env id and the options that shape observations of a model saved by ``cv2x-marl train``
+    (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3 file)."""
+    import json
+
+    cfg_path = Path(path).parent / "train_config.json"
+    if not cfg_path.exists():
+        return None, {}
+    try:
+        cfg = json.loads(cfg_path.read_text())
+        keep = ("observation", "privileged", "model", "n_neighbours", "scale_m", "settle_steps", "reward_form")
+        return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"cannot read the training configuration {cfg_path}: {exc}") from exc
+
+
+def optimum_utilities(env: MobilityEnv) -> np.ndarray:
+    """[N] every vehicle's utility (env units) with the movers at the optimum policy's targets."""
+    from cv2x_marl.policies.optimum import OptimumPolicy, best_response_targets
+
+    ref = OptimumPolicy(env)
+    movers = [int(i) for i in np.flatnonzero(env.mover_mask)]
+    targets = best_response_targets(env, movers, ref.rounds, ref.grid_m, ref.refine)
+    return env._utilities(env.links.success(targets), env.target)
+
+
 def evaluate(
-    env_id: str,
+    env_id: str | None,
     policy_spec: str | Policy,
     episodes: int,
     seed: int,
@@ -103,13 +143,28 @@ def evaluate(
     model_path: str = "paper-table2",
     delta: float = 100.0,
     progress: bool = True,
+    vs_optimum: bool = False,
 ) -> dict[str, Any]:
-    """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns."""
+    """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns.
+
+    Args:
+        env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on, else
+            ``cv2x/SingleMover-v1``.
+        vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
+            (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
+            utility gain over the optimum's on the same episodes.
+    """
     from tqdm import tqdm
 
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
-    env = make_eval_env(env_id, **(env_kwargs or {}))
+    env_kwargs = dict(env_kwargs or {})
+    if isinstance(policy_spec, str) and policy_spec.startswith("ppo:"):
+        trained_id, trained_env = trained_env_options(Path(policy_spec[4:]))
+        env_id = env_id or trained_id
+        env_kwargs = {**trained_env, **env_kwargs}
+    env_id = env_id or "cv2x/SingleMover-v1"
+    env = make_eval_env(env_id, **env_kwargs)
     if isinstance(policy_spec, str):
         policy = make_policy(policy_spec, env, model_path, delta)
     else:
@@ -125,6 +180,7 @@ def evaluate(
     ):
         obs, infos = env.reset(seed=ep_seed)
         policy.reset(ep_seed)
+        u_opt = optimum_utilities(env) if vs_optimum else None
         returns = dict.fromkeys(movers, 0.0)
         last = infos
         while env.agents:
@@ -149,6 +205,8 @@ def evaluate(
                     "return": returns[a],
                 }
             )
+            if u_opt is not None:
+                rows[-1]["utility_optimum"] = float(u_opt[env.agent_index[a]])
     runtime = time.perf_counter() - t0
     u0 = np.array([r["utility_start"] for r in rows])
     u1 = np.array([r["utility_end"] for r in rows])
@@ -159,7 +217,7 @@ def evaluate(
         pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
     for r, a, b in zip(rows, ug, pg, strict=True):
         r["utility_gain"], r["prr_gain"] = float(a), float(b)
-    summary = {
+    summary: dict[str, Any] = {
         "env": env_id,
         "policy": policy_spec,
         "episodes": episodes,
@@ -178,6 +236,13 @@ def evaluate(
         "runtime_s": runtime,
         "env_steps": steps,
     }
+    if vs_optimum:
+        uo = np.array([r["utility_optimum"] for r in rows])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+        summary["optimum_utility_gain"] = float(np.nanmean(og))
+        summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
+        summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
     if out_dir is not None:
         out_dir = Path(out_dir)
 

@@ -17,8 +17,8 @@ import numpy as np
 from cv2x_marl.config import preset
 from cv2x_marl.io import write_json
 
-SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle")
-ENVS = {"single": "cv2x/SingleMover-v0", "multi": "cv2x/Mobility-v0"}
+SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "optimum")
+ENVS = {"single": "cv2x/SingleMover-v1", "multi": "cv2x/Mobility-v1"}
 KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "n_prr_drop")
 
 
@@ -86,11 +86,14 @@ def reproduce(
         ppo_models = shipped_models(models_dir, kind)
         if ppo_models:
             per_seed = [
-                evaluate(env_id, f"ppo:{m}", episodes, seed, out / f"eval-{kind}-ppo-{m.parent.name}", progress=False)
+                evaluate(None, f"ppo:{m}", episodes, seed, out / f"eval-{kind}-ppo-{m.parent.name}", progress=False)
                 for m in ppo_models
             ]
             rows.append(_row(f"ppo ({len(ppo_models)} seeds)", per_seed))
             log(f"  {kind} ppo: utility gain {rows[-1]['mean_utility_gain']:+.1%} over {len(ppo_models)} seeds")
+        best = next((r for r in rows if r["method"] == "optimum"), None)
+        for r in rows:  # every method against the optimum on the same episodes
+            r["share_of_optimum"] = r["mean_utility_gain"] / best["mean_utility_gain"] if best else float("nan")
         tables[kind] = rows
         plotting.plot_method_comparison(
             rows, out / f"comparison-{kind}.png", f"{env_id}: {episodes} held-out episodes (seed {seed})"
@@ -169,8 +172,9 @@ def _markdown(r: dict[str, Any]) -> str:
             "",
             f"## Movers on `{ENVS[kind]}` ({n_ep} held-out episodes; PPO: mean +- std over training seeds)",
             "",
-            "| method | mean utility gain | effectiveness | mean PRR gain | Jain | PRR drops |",
-            "|---|---:|---:|---:|---:|---:|",
+            "| method | mean utility gain | share of the optimum's gain | effectiveness | mean PRR gain | Jain "
+            "| PRR drops |",
+            "|---|---:|---:|---:|---:|---:|---:|",
         ]
         for row in rows:
             sd = row["n_seeds"] > 1
@@ -182,7 +186,8 @@ def _markdown(r: dict[str, Any]) -> str:
                 return v
 
             lines.append(
-                f"| {row['method']} | {cell('mean_utility_gain', '+.1f')} | {cell('effectiveness', '.1f')} | "
+                f"| {row['method']} | {cell('mean_utility_gain', '+.1f')} | {100 * row.get('share_of_optimum', float('nan')):.0f} % | "
+                f"{cell('effectiveness', '.1f')} | "
                 f"{cell('mean_prr_gain', '+.1f')} | {cell('jain_fairness', '')} | {row['n_prr_drop']:.1f} |"
             )
         lines += ["", f"Figures: `comparison-{kind}.png`, `learning-{kind}.png`."]

@@ -22,7 +22,7 @@ import numpy as np
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.rl.errors import TrainError
 
-ENV_IDS = ("cv2x/SingleMover-v0", "cv2x/Mobility-v0")
+ENV_IDS = ("cv2x/SingleMover-v0", "cv2x/Mobility-v0", "cv2x/SingleMover-v1", "cv2x/Mobility-v1")
 
 
 @dataclass(frozen=True)

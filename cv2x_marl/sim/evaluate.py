@@ -354,3 +354,74 @@ class SnapshotLinks:
             positions_m: [N, 2] vehicle positions (m).
         """
         return self.evaluate(positions_m)[0]
+
+    def mover_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
+        """The links of one transmitter as a function of its own position, the others where they are.
+
+        Args:
+            mover: index of the transmitter that moves.
+            positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
+        """
+        if not 0 <= mover < self.n:
+            raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        if pos.shape != (self.n, 2):
+            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
+        return MoverRow(self, int(mover), pos)
+
+
+class MoverRow:
+    """Row ``mover`` of :meth:`SnapshotLinks.evaluate` for many positions of the mover at once.
+
+    With the other vehicles fixed, the interference on the mover's links does not depend on where
+    the mover stands (a transmitter never interferes with its own packet), so it is computed once;
+    each candidate position then costs one path loss per target receiver. Compiled: the additions of
+    :func:`cv2x_marl.sim.kernels.snapshot_links` in the same order (bit-identical to the row of a
+    full evaluation, tested); otherwise one full numpy evaluation per candidate.
+    """
+
+    def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray) -> None:
+        self.links = links
+        self.mover = mover
+        self.positions_m = positions_m
+        self.target_row = np.ascontiguousarray(links.target[mover])
+        if links.compiled:
+            (period, los, gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            interference = kernels.mover_interference(positions_m, period, los, gain, wb1, range2, idx, val, mover)
+            self._args = (
+                positions_m,
+                mover,
+                period,
+                np.ascontiguousarray(los[mover]),
+                np.ascontiguousarray(gain[mover]),
+                wb1,
+                range2,
+                interference,
+                noise,
+                model,
+                per_sinr,
+                per,
+                thr,
+                sens,
+                self.target_row,
+            )
+
+    def success(self, candidates_m: FloatArray) -> FloatArray:
+        """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""
+        cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
+        if self.links.compiled:
+            return kernels.mover_row_success(cand, *self._args)
+        out = np.empty((cand.shape[0], self.links.n))
+        pos = self.positions_m.copy()
+        for m, c in enumerate(cand):  # reference path (power law, geometry LOS): one evaluation each
+            pos[self.mover] = c
+            out[m] = self.links.evaluate(pos)[0][self.mover]
+        return out
+
+    def utility(self, candidates_m: FloatArray, p_min: float, chunk: int = 65_536) -> FloatArray:
+        """[M] eq. 12 utility of the mover at each candidate [M, 2] (m), in chunks of ``chunk`` rows."""
+        cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
+        out = np.empty(cand.shape[0])
+        for lo in range(0, cand.shape[0], chunk):
+            out[lo : lo + chunk] = kernels.row_utility(self.success(cand[lo : lo + chunk]), self.target_row, p_min)
+        return out

@@ -115,6 +115,89 @@ def _per_success(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray) -> fl
 
 
 @njit(cache=True)
+def _pair_powers(
+    positions_m: FloatArray,
+    period_m: FloatArray,
+    los: NDArray[np.bool_],
+    gain_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Geometry and mean received power of every ordered pair (one pass over the unordered pairs)."""
+    n = positions_m.shape[0]
+    disp = np.empty((2, n, n))
+    dist2 = np.empty((n, n))
+    rx_dbm = np.empty((n, n))
+    rx_mw = np.empty((n, n))
+    for i in range(n):
+        disp[0, i, i] = 0.0
+        disp[1, i, i] = 0.0
+        dist2[i, i] = 0.0
+        rx_dbm[i, i] = -np.inf
+        rx_mw[i, i] = 0.0
+        for j in range(i + 1, n):
+            dx = positions_m[j, 0] - positions_m[i, 0]
+            dy = positions_m[j, 1] - positions_m[i, 1]
+            if period_m[0] < np.inf:
+                dx -= period_m[0] * np.rint(dx / period_m[0])
+            if period_m[1] < np.inf:
+                dy -= period_m[1] * np.rint(dy / period_m[1])
+            d2 = dx * dx + dy * dy
+            disp[0, i, j] = dx
+            disp[1, i, j] = dy
+            disp[0, j, i] = -dx
+            disp[1, j, i] = -dy
+            dist2[i, j] = d2
+            dist2[j, i] = d2
+            if d2 <= range2_m2:
+                pl = winner_b1_pair_db(dx, dy, los[i, j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+                a = gain_db[i, j] - pl
+                b = gain_db[j, i] - pl
+            else:
+                a = -np.inf
+                b = -np.inf
+            rx_dbm[i, j] = a
+            rx_dbm[j, i] = b
+            rx_mw[i, j] = math.exp(a * _DB_TO_NEPER)  # 10 ** (a / 10)
+            rx_mw[j, i] = math.exp(b * _DB_TO_NEPER)
+    return disp, dist2, rx_dbm, rx_mw
+
+
+@njit(cache=True)
+def _interference_mw(
+    rx_mw: FloatArray, interferer_idx: NDArray[np.int64], interferer_weight: FloatArray, tx: int, rx: int
+) -> float:
+    """Interference at ``rx`` on ``tx``'s packet: the weighted powers of tx's interferers, in table order."""
+    interference = 0.0
+    for g in range(interferer_idx.shape[1]):
+        c = interferer_idx[tx, g]
+        if c < 0:
+            break
+        interference += interferer_weight[tx, g] * rx_mw[c, rx]
+    return interference
+
+
+@njit(cache=True)
+def _link_success(
+    s_dbm: float,
+    interference_mw: float,
+    noise_mw: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+) -> float:
+    """Expected success of one link from its mean signal (dBm) and interference (mW)."""
+    if s_dbm < sensitivity_dbm or s_dbm == -np.inf:
+        return 0.0
+    sinr_db = s_dbm - 10.0 * math.log10(interference_mw + noise_mw)
+    if model == MODEL_PER_TABLE:
+        return _per_success(sinr_db, per_sinr_db, per)
+    return 1.0 if sinr_db >= threshold_db else 0.0
+
+
+@njit(cache=True)
 def snapshot_links(
     positions_m: FloatArray,
     period_m: FloatArray,
@@ -157,62 +240,120 @@ def snapshot_links(
         p: [N(tx), N(rx)] expected success, 0 off ``target``.
     """
     n = positions_m.shape[0]
-    disp = np.empty((2, n, n))
-    dist2 = np.empty((n, n))
-    rx_dbm = np.empty((n, n))
-    rx_mw = np.empty((n, n))
-    for i in range(n):
-        disp[0, i, i] = 0.0
-        disp[1, i, i] = 0.0
-        dist2[i, i] = 0.0
-        rx_dbm[i, i] = -np.inf
-        rx_mw[i, i] = 0.0
-        for j in range(i + 1, n):
-            dx = positions_m[j, 0] - positions_m[i, 0]
-            dy = positions_m[j, 1] - positions_m[i, 1]
-            if period_m[0] < np.inf:
-                dx -= period_m[0] * np.rint(dx / period_m[0])
-            if period_m[1] < np.inf:
-                dy -= period_m[1] * np.rint(dy / period_m[1])
-            d2 = dx * dx + dy * dy
-            disp[0, i, j] = dx
-            disp[1, i, j] = dy
-            disp[0, j, i] = -dx
-            disp[1, j, i] = -dy
-            dist2[i, j] = d2
-            dist2[j, i] = d2
-            if d2 <= range2_m2:
-                pl = winner_b1_pair_db(dx, dy, los[i, j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
-                a = gain_db[i, j] - pl
-                b = gain_db[j, i] - pl
-            else:
-                a = -np.inf
-                b = -np.inf
-            rx_dbm[i, j] = a
-            rx_dbm[j, i] = b
-            rx_mw[i, j] = math.exp(a * _DB_TO_NEPER)  # 10 ** (a / 10)
-            rx_mw[j, i] = math.exp(b * _DB_TO_NEPER)
+    disp, dist2, rx_dbm, rx_mw = _pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
     p = np.zeros((n, n))
-    g_max = interferer_idx.shape[1]
     for tx in range(n):
         for rx in range(n):
             if not target[tx, rx]:
                 continue
-            s_dbm = rx_dbm[tx, rx]
-            if s_dbm < sensitivity_dbm or s_dbm == -np.inf:
-                continue
-            interference = 0.0
-            for g in range(g_max):
-                c = interferer_idx[tx, g]
-                if c < 0:
-                    break
-                interference += interferer_weight[tx, g] * rx_mw[c, rx]
-            sinr_db = s_dbm - 10.0 * math.log10(interference + noise_mw)
-            if model == MODEL_PER_TABLE:
-                p[tx, rx] = _per_success(sinr_db, per_sinr_db, per)
-            elif sinr_db >= threshold_db:
-                p[tx, rx] = 1.0
+            interference = _interference_mw(rx_mw, interferer_idx, interferer_weight, tx, rx)
+            p[tx, rx] = _link_success(
+                rx_dbm[tx, rx], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
+            )
     return disp, dist2, p
+
+
+@njit(cache=True)
+def mover_interference(
+    positions_m: FloatArray,
+    period_m: FloatArray,
+    los: NDArray[np.bool_],
+    gain_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    interferer_idx: NDArray[np.int64],
+    interferer_weight: FloatArray,
+    mover: int,
+) -> FloatArray:
+    """[N] interference (mW) at every receiver on ``mover``'s packet, the other vehicles where they are.
+
+    The interferers of a transmitter never include itself, so this row does not depend on the
+    mover's own position: with the others fixed it is computed once and reused by
+    :func:`mover_row_success` for every candidate position. Arguments as :func:`snapshot_links`;
+    the sums are the same additions in the same order, so the results are bit-identical.
+    """
+    n = positions_m.shape[0]
+    _, _, _, rx_mw = _pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
+    out = np.zeros(n)
+    for rx in range(n):
+        out[rx] = _interference_mw(rx_mw, interferer_idx, interferer_weight, mover, rx)
+    return out
+
+
+@njit(cache=True)
+def mover_row_success(
+    candidates_m: FloatArray,
+    positions_m: FloatArray,
+    mover: int,
+    period_m: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    interference_mw: FloatArray,
+    noise_mw: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    target_row: NDArray[np.bool_],
+) -> FloatArray:
+    """[M, N] expected success of ``mover``'s links with the mover at each of M candidate positions.
+
+    The same per-link computation as :func:`snapshot_links` (pair displacement in index order,
+    WINNER+ B1, EIRP - shadowing, the receiver's interference from :func:`mover_interference`,
+    noise, PER / threshold, sensitivity), so a candidate equal to the mover's position in
+    ``positions_m`` reproduces row ``mover`` of :func:`snapshot_links` bit for bit.
+
+    Args:
+        candidates_m: [M, 2] positions of the mover to evaluate (m).
+        positions_m: [N, 2] positions of every vehicle (the mover's own row is ignored).
+        mover: index of the moving transmitter.
+        los_row, gain_row_db, target_row: row ``mover`` of the arrays of :func:`snapshot_links`.
+        interference_mw: [N] :func:`mover_interference` of the mover.
+    """
+    m_count = candidates_m.shape[0]
+    n = positions_m.shape[0]
+    p = np.zeros((m_count, n))
+    for m in range(m_count):
+        for j in range(n):
+            if not target_row[j]:
+                continue
+            # the displacement as snapshot_links takes it: from the lower to the higher index
+            if mover < j:
+                dx = positions_m[j, 0] - candidates_m[m, 0]
+                dy = positions_m[j, 1] - candidates_m[m, 1]
+            else:
+                dx = candidates_m[m, 0] - positions_m[j, 0]
+                dy = candidates_m[m, 1] - positions_m[j, 1]
+            if period_m[0] < np.inf:
+                dx -= period_m[0] * np.rint(dx / period_m[0])
+            if period_m[1] < np.inf:
+                dy -= period_m[1] * np.rint(dy / period_m[1])
+            if dx * dx + dy * dy <= range2_m2:
+                pl = winner_b1_pair_db(dx, dy, los_row[j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+                s_dbm = gain_row_db[j] - pl
+            else:
+                s_dbm = -np.inf
+            p[m, j] = _link_success(
+                s_dbm, interference_mw[j], noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
+            )
+    return p
+
+
+@njit(cache=True)
+def row_utility(p: FloatArray, target_row: NDArray[np.bool_], p_min: float) -> FloatArray:
+    """[M] eq. 12 utility ``sum_j ln max(P_mj, p_min)`` over the targets of each row of ``p`` [M, N]
+    (the additions of :func:`link_summaries`, in its order)."""
+    out = np.zeros(p.shape[0])
+    for m in range(p.shape[0]):
+        u = 0.0
+        for j in range(p.shape[1]):
+            if target_row[j]:
+                u += math.log(max(p[m, j], p_min))
+        out[m] = u
+    return out
 
 
 @njit(cache=True)

@@ -1,0 +1,291 @@
+"""The optimum mover: the best reachable position under the env's true utility.
+
+A privileged reference (it reads the env's link model, like the oracle), but global where the
+oracle is local: for each mover it searches the whole set of positions the mover can reach in the
+episode for the one with the largest eq. 12 utility, evaluated by the same link computation as the
+env's reward (:meth:`cv2x_marl.sim.evaluate.SnapshotLinks.mover_row`, bit-identical to the reward),
+then drives there in straight steps.
+
+Reachable set of mover i from its start ``s_i`` with ``T`` steps left: the square
+``|x - s_i|_inf <= T * max_step_m`` (an action moves each axis by at most ``max_step_m``),
+intersected with the drift disc ``|x - s_i| <= max_drift_m`` and the region of interest when the
+env bounds them. The set is convex and contains the straight path to any of its points, so the
+mover reaches its target exactly, whatever the env's bounding does.
+
+Search: a grid of pitch ``grid_m`` over the set (every point evaluated, compiled), then the
+``refine`` best grid points are refined twice on 21 x 21 grids of a tenth of the previous pitch,
+and the start position is always a candidate (so the optimum never loses utility). The search is
+exact up to the grid: a peak narrower than ``grid_m`` can be missed, which the tests bound by
+comparing with a 4x finer brute force.
+
+Several movers (``cv2x/Mobility-*``): coordinate-wise best response. In ``rounds`` rounds, each mover
+in index order moves to its best reachable position given where the others are at that moment
+(their targets so far); every mover then drives to its final target. This is a Nash-style
+reference for the individual reward, not a bound on the team's utility or PRR: one mover's best
+response can lower the others' utility through interference, and the rounds need not converge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.policies.base import Actions, Observations
+from cv2x_marl.sim.evaluate import MoverRow
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ReachableSet:
+    """Where a mover can be at the end of the episode (see the module docstring).
+
+    Attributes:
+        start_m: [2] start position (m).
+        radius_m: half-width of the Chebyshev square (m).
+        max_drift_m: radius of the drift disc around the start (None: no disc).
+        box_m: [2] upper corner of the region of interest [0, box] (None: unbounded).
+    """
+
+    start_m: FloatArray
+    radius_m: float
+    max_drift_m: float | None = None
+    box_m: FloatArray | None = None
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        """Lower and upper corner of the axis-aligned box that holds the set."""
+        r = self.radius_m if self.max_drift_m is None else min(self.radius_m, self.max_drift_m)
+        lo, hi = self.start_m - r, self.start_m + r
+        if self.box_m is not None:
+            lo, hi = np.maximum(lo, 0.0), np.minimum(hi, self.box_m)
+        return lo, hi
+
+    def contains(self, points_m: FloatArray, tol_m: float = 1e-9) -> NDArray[np.bool_]:
+        """[M] which of the points [M, 2] lie in the set."""
+        d = np.asarray(points_m, dtype=np.float64) - self.start_m
+        ok = np.abs(d).max(axis=-1) <= self.radius_m + tol_m
+        if self.max_drift_m is not None:
+            ok &= np.hypot(d[..., 0], d[..., 1]) <= self.max_drift_m + tol_m
+        if self.box_m is not None:
+            p = np.asarray(points_m)
+            ok &= np.all((p >= -tol_m) & (p <= self.box_m + tol_m), axis=-1)
+        return ok
+
+
+def _grid(lo: FloatArray, hi: FloatArray, pitch_m: float) -> FloatArray:
+    axes = [np.linspace(lo[c], hi[c], max(int(np.ceil((hi[c] - lo[c]) / pitch_m)) + 1, 1)) for c in range(2)]
+    gx, gy = np.meshgrid(*axes, indexing="ij")
+    return np.stack((gx.ravel(), gy.ravel()), axis=1)
+
+
+def best_reachable(
+    row: MoverRow,
+    reach: ReachableSet,
+    p_min: float,
+    grid_m: float = 2.5,
+    refine: int = 16,
+) -> tuple[FloatArray, float]:
+    """The position of largest eq. 12 utility in the reachable set, and that utility.
+
+    Args:
+        row: the mover's links (:meth:`SnapshotLinks.mover_row`), others fixed.
+        reach: the mover's :class:`ReachableSet`.
+        p_min: clip of P inside the log (the env's ``p_min``).
+        grid_m: pitch of the global grid (m).
+        refine: grid points refined (the best ones).
+
+    Returns:
+        ``(position_m [2], utility)``; the utility is in the env's units before any normalisation.
+    """
+    if grid_m <= 0 or refine < 1:
+        raise ValueError(f"grid_m must be > 0 and refine >= 1, got {grid_m}, {refine}")
+    start = np.asarray(reach.start_m, dtype=np.float64)
+    lo, hi = reach.bounds()
+    cand = _grid(lo, hi, grid_m)
+    cand = np.concatenate([start[None], cand[reach.contains(cand)]])
+    u = row.utility(cand, p_min)
+    best_pos, best_u = start.copy(), float(u[0])
+    pitch = grid_m
+    seeds = cand[np.argsort(-u, kind="stable")[:refine]]
+    for _ in range(2):  # two refinements, each a tenth of the previous pitch
+        pitch /= 10.0
+        offsets = _grid(np.full(2, -10 * pitch), np.full(2, 10 * pitch), pitch)
+        fine = (seeds[:, None, :] + offsets[None]).reshape(-1, 2)
+        fine = fine[reach.contains(fine)]
+        if fine.size == 0:
+            break
+        uf = row.utility(fine, p_min)
+        order = np.argsort(-uf, kind="stable")
+        seeds = fine[order[:refine]]
+        if uf[order[0]] > best_u:
+            best_u, best_pos = float(uf[order[0]]), fine[order[0]].copy()
+    k = int(np.argmax(u))
+    if u[k] > best_u:
+        best_u, best_pos = float(u[k]), cand[k].copy()
+    return best_pos, best_u
+
+
+def reachable_set(env: Any, i: int) -> ReachableSet:
+    """:class:`ReachableSet` of vehicle ``i`` of a snapshot-mode env from its episode start."""
+    steps_left = max(env.max_cycles - getattr(env, "settle_steps", 0) - env.t, 0)  # moving steps left
+    return ReachableSet(
+        np.asarray(env.start_m[i], dtype=np.float64),
+        float(steps_left * env.max_step_m),
+        env.max_drift_m,
+        np.asarray(env.box_m, dtype=np.float64) if env.roi else None,
+    )
+
+
+def best_response_targets(
+    env: Any, movers: list[int], rounds: int = 2, grid_m: float = 2.5, refine: int = 16
+) -> FloatArray:
+    """[N, 2] target positions: the others stay, each mover's best response after ``rounds`` rounds.
+
+    One mover (``cv2x/SingleMover-*``) needs one round: it is then the exact best reachable position.
+    """
+    pos = np.array(env.positions_m, dtype=np.float64)
+    rounds = 1 if len(movers) == 1 else rounds
+    for _ in range(rounds):
+        for i in movers:
+            row = env.links.mover_row(i, pos)
+            pos[i], _ = best_reachable(row, reachable_set(env, i), env.p_min, grid_m, refine)
+    return pos
+
+
+class OptimumPolicy:
+    """Privileged reference: every mover drives straight to its best reachable position.
+
+    Targets are computed at the first step of each episode (:func:`best_response_targets`), then
+    each action is the remaining displacement over ``max_step_m``, clipped to the box. Snapshot mode
+    only (traffic mode has no fixed landscape to search).
+
+    Args:
+        env: the :class:`~cv2x_marl.env.MobilityEnv` it acts in (read, never stepped by the policy).
+        rounds: best-response rounds when several vehicles move.
+        grid_m: pitch of the global search grid (m); default 2.5 for one mover, 10 for several.
+    """
+
+    name = "optimum"
+
+    def __init__(self, env: Any, rounds: int = 2, grid_m: float | None = None, refine: int = 16) -> None:
+        if getattr(env, "mode", "snapshot") != "snapshot":
+            raise ValueError("the optimum policy needs the env in snapshot mode")
+        self.env = env
+        self.rounds = rounds
+        # one mover: 2.5 m; best-response rounds over many movers: 10 m (then refined to 0.1 m)
+        self.grid_m = grid_m if grid_m is not None else (2.5 if int(np.sum(env.mover_mask)) == 1 else 10.0)
+        self.refine = refine
+        self.targets_m: FloatArray | None = None
+        self._episode: int | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        self.targets_m = None
+
+    def act(self, observations: Observations) -> Actions:
+        env = self.env
+        if self.targets_m is None or (env.t == 0 and self._episode != id(env.links)):
+            movers = [int(i) for i in np.flatnonzero(env.mover_mask)]
+            self.targets_m = best_response_targets(env, movers, self.rounds, self.grid_m, self.refine)
+            self._episode = id(env.links)
+        out: Actions = {}
+        for a in observations:
+            i = env.agent_index[a]
+            move = (self.targets_m[i] - env.positions_m[i]) / env.max_step_m
+            out[a] = np.clip(move, -1.0, 1.0).astype(np.float32)
+        return out
+
+
+class ModelRow:
+    """The two-distance model's view of one mover's links, with the :class:`MoverRow` interface.
+
+    What a vehicle can compute from one-hop information (receiver positions, their main-interferer
+    distance and NSV, as GBMU reads them) and the steering model: the predicted eq. 12 utility
+    ``sum_j ln max(P_hat(d_j(x), l_j, NSV_j), p_min)`` at candidate positions x. The receivers and
+    interferers are taken where they were observed.
+
+    Args:
+        rx_m: [R, 2] receiver positions (m, absolute).
+        l_m: [R] main-interference distances (m).
+        nsv: [R] NSV of each receiver.
+        mask: [R] which receivers are targets.
+        model: the :class:`~cv2x_marl.regression.model.TwoDistanceModel`.
+    """
+
+    def __init__(self, rx_m: FloatArray, l_m: FloatArray, nsv: NDArray[np.int64], mask: NDArray[np.bool_], model: Any):
+        keep = np.asarray(mask, dtype=bool)
+        self.rx_m = np.asarray(rx_m, dtype=np.float64)[keep]
+        self.l_m = np.asarray(l_m, dtype=np.float64)[keep]
+        self.nsv = np.asarray(nsv)[keep]
+        self.model = model
+
+    def utility(self, candidates_m: FloatArray, p_min: float, chunk: int = 8_192) -> FloatArray:
+        """[M] predicted eq. 12 utility at candidates [M, 2] (m)."""
+        cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
+        out = np.empty(cand.shape[0])
+        for lo in range(0, cand.shape[0], chunk):
+            c = cand[lo : lo + chunk]
+            d = np.maximum(np.hypot(c[:, None, 0] - self.rx_m[:, 0], c[:, None, 1] - self.rx_m[:, 1]), 1.0)
+            p = self.model.predict(d, self.l_m, self.nsv)
+            out[lo : lo + chunk] = np.log(np.maximum(p, p_min)).sum(axis=1)
+        return out
+
+
+def model_plan(
+    inputs: Any, starts_m: FloatArray, reaches: list[ReachableSet], model: Any, p_min: float, grid_m: float = 20.0
+) -> FloatArray:
+    """[B, 2] the model's best reachable position of B movers (the ``plan`` of observation v1).
+
+    Args:
+        inputs: :class:`~cv2x_marl.policies.gbmu.GbmuInputs` of the movers, receivers relative to them.
+        starts_m: [B, 2] the movers' positions when the inputs were observed (m).
+        reaches: the movers' :class:`ReachableSet`.
+        model: the two-distance model.
+        p_min: clip inside the log.
+        grid_m: pitch of the global grid (then refined twice, to a hundredth).
+    """
+    out = np.empty((len(reaches), 2))
+    for b, reach in enumerate(reaches):
+        row = ModelRow(starts_m[b] + inputs.rx_m[b], inputs.l_m[b], inputs.nsv[b], inputs.mask[b], model)
+        out[b], _ = best_reachable(row, reach, p_min, grid_m=grid_m, refine=4)  # type: ignore[arg-type]
+    return out
+
+
+class PlannerPolicy:
+    """Scripted, not privileged: drive straight to the model's best reachable position.
+
+    The position is computed once per episode from the first observation (one-hop information and
+    the two-distance model, like GBMU) by a global search of the model's predicted utility over the
+    reachable set (:func:`model_plan`), instead of GBMU's local gradient steps. It shows how much of
+    GBMU's gap to the optimum is the algorithm (local steps) and how much the model.
+    """
+
+    name = "planner"
+
+    def __init__(self, env: Any, model: Any) -> None:
+        self.env = env
+        self.model = model
+        self.targets_m: dict[str, FloatArray] = {}
+
+    def reset(self, seed: int | None = None) -> None:
+        self.targets_m = {}
+
+    def act(self, observations: Observations) -> Actions:
+        from cv2x_marl.policies.scripted import decode_observations
+
+        env = self.env
+        agents = list(observations)
+        if not self.targets_m:
+            v0 = np.stack([observations[a][: env.layout.v0_size] for a in agents])
+            idx = [env.agent_index[a] for a in agents]
+            pos = np.asarray(env.positions_m)[idx]
+            reaches = [reachable_set(env, i) for i in idx]
+            plan = model_plan(decode_observations(v0, env.layout), pos, reaches, self.model, env.p_min)
+            self.targets_m = dict(zip(agents, plan, strict=True))
+        out: Actions = {}
+        for a in agents:
+            move = (self.targets_m[a] - env.positions_m[env.agent_index[a]]) / env.max_step_m
+            out[a] = np.clip(move, -1.0, 1.0).astype(np.float32)
+        return out
