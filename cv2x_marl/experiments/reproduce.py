@@ -185,8 +185,9 @@ def _markdown(r: dict[str, Any]) -> str:
                     v += " +- " + (format(100 * row[k + "_std"], ".1f") + " %" if fmt else f"{row[k + '_std']:.3f}")
                 return v
 
+            share = 100 * row.get("share_of_optimum", float("nan"))
             lines.append(
-                f"| {row['method']} | {cell('mean_utility_gain', '+.1f')} | {100 * row.get('share_of_optimum', float('nan')):.0f} % | "
+                f"| {row['method']} | {cell('mean_utility_gain', '+.1f')} | {share:.0f} % | "
                 f"{cell('effectiveness', '.1f')} | "
                 f"{cell('mean_prr_gain', '+.1f')} | {cell('jain_fairness', '')} | {row['n_prr_drop']:.1f} |"
             )
