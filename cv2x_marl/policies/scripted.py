@@ -15,6 +15,7 @@ from cv2x_marl.env.observation import ObservationLayout
 from cv2x_marl.policies.base import Actions, Observations
 from cv2x_marl.policies.gbmu import GbmuInputs, gbmu_direction
 from cv2x_marl.regression.model import TwoDistanceModel
+from cv2x_marl.sim.kernels import link_summaries
 
 
 def decode_observations(obs: np.ndarray, layout: ObservationLayout) -> GbmuInputs:
@@ -100,7 +101,8 @@ class OraclePolicy:
                 for sign in (1.0, -1.0):
                     pos = base.copy()
                     pos[i, c] += sign * self.h_m
-                    us.append(env._utilities(env.links.success(pos), env.target)[i])
+                    # eq. 12 itself, whatever the env's normalise_reward (the step rule divides by |R_i|)
+                    us.append(link_summaries(env.links.success(pos), env.target, env.p_min)[0, i])
                 grad[c] = (us[0] - us[1]) / (2 * self.h_m)
             n_rx = max(int(env.target[i].sum()), 1)
             move = self.delta * grad / n_rx

@@ -170,3 +170,15 @@ def test_bad_v1_arguments_name_the_argument() -> None:
     for seed in (1.5, -1, True, "3"):
         with pytest.raises(ValueError, match="seed"):
             e.reset(seed=seed)  # type: ignore[arg-type]
+
+
+def test_oracle_step_does_not_depend_on_reward_normalisation() -> None:
+    from cv2x_marl.policies.scripted import OraclePolicy
+
+    acts = []
+    for normalise in (False, True):
+        e = MobilityEnv(movers=[0], normalise_reward=normalise, **FAST)
+        obs, _ = e.reset(seed=6)
+        acts.append(OraclePolicy(e).act({"vehicle_0": obs["vehicle_0"]})["vehicle_0"])
+    assert np.abs(acts[0]).max() > 1e-3  # it does move
+    np.testing.assert_array_equal(acts[0], acts[1])
