@@ -68,7 +68,6 @@ def test_best_response_for_several_movers() -> None:
     env = make_eval_env("cv2x/Mobility-v1", max_cycles=4, **FAST)
     env.reset(seed=0)
     pol = OptimumPolicy(env, rounds=1, grid_m=10.0)
-    start_u = env.u.copy()
     acts = pol.act({a: None for a in env.agents})  # type: ignore[misc]
     targets = pol.targets_m
     assert targets is not None
@@ -84,7 +83,6 @@ def test_best_response_for_several_movers() -> None:
     u_end = row.utility(env.positions_m[last][None], env.p_min)[0]
     assert u_end == pytest.approx(u_best, rel=1e-6)
     assert u_end >= row.utility(env.start_m[last][None], env.p_min)[0]
-    assert start_u.shape == (env.n,)
 
 
 def test_planner_is_not_privileged_and_moves_to_the_model_optimum() -> None:
