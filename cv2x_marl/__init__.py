@@ -1,8 +1,8 @@
 """cv2x_marl: controlled mobility in C-V2X sidelink Mode 4 networks.
 
-Importing the package registers ``cv2x/Mobility-v0`` with PettingZoo and ``cv2x/SingleMover-v0``
-with Gymnasium when those (the ``train`` extra) are installed; the simulator itself
-(``cv2x_marl.sim``) never imports them.
+Importing the package registers ``cv2x/Mobility-v0``, ``-v1``, ``-v2`` with PettingZoo and
+``cv2x/SingleMover-v0``, ``-v1``, ``-v2`` with Gymnasium when those (the ``train`` extra) are
+installed; the simulator itself (``cv2x_marl.sim``) never imports them.
 """
 
 __version__ = "0.1.0"
@@ -14,14 +14,14 @@ def _register_envs() -> None:
         import pettingzoo
     except ImportError:  # the train extra is not installed: nothing to register
         return
-    for version in ("v0", "v1"):
+    for version in ("v0", "v1", "v2"):
         env_id = f"cv2x/Mobility-{version}"
-        suffix = "" if version == "v0" else "_v1"
+        suffix = "" if version == "v0" else f"_{version}"
         for kind, entry in (("parallel", f"cv2x_marl.env:parallel_env{suffix}"), ("aec", f"cv2x_marl.env:env{suffix}")):
             registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
             if env_id not in registry:
                 pettingzoo.register(kind, env_id, entry_point=entry)
-    for version, cls in (("v0", "SingleMoverEnv"), ("v1", "SingleMoverEnvV1")):
+    for version, cls in (("v0", "SingleMoverEnv"), ("v1", "SingleMoverEnvV1"), ("v2", "SingleMoverEnvV2")):
         if f"cv2x/SingleMover-{version}" not in gymnasium.registry:
             gymnasium.register(id=f"cv2x/SingleMover-{version}", entry_point=f"cv2x_marl.env.single:{cls}")
 

@@ -23,7 +23,14 @@ from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
 #: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
-EVAL_ENV_IDS = ("cv2x/SingleMover-v1", "cv2x/Mobility-v1", "cv2x/SingleMover-v0", "cv2x/Mobility-v0")
+EVAL_ENV_IDS = (
+    "cv2x/SingleMover-v2",
+    "cv2x/Mobility-v2",
+    "cv2x/SingleMover-v1",
+    "cv2x/Mobility-v1",
+    "cv2x/SingleMover-v0",
+    "cv2x/Mobility-v0",
+)
 
 
 def _print_json(data: object) -> None:
@@ -302,7 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v1",
     )
     p.add_argument(
-        "--policy", default="gbmu", help="static | random | gbmu | greedy | oracle | planner | optimum | ppo:PATH"
+        "--policy",
+        default="gbmu",
+        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH",
     )
     p.add_argument(
         "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"

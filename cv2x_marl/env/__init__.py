@@ -5,10 +5,11 @@
     env(**kw)           the AEC version with PettingZoo's standard wrapper (order enforcing)
 
     parallel_env_v1 / env_v1   the same for ``cv2x/Mobility-v1`` (observation version 1, improvement rewards)
+    parallel_env_v2 / env_v2   the same for ``cv2x/Mobility-v2`` (observation version 2: the sensing plan)
 
-``import cv2x_marl`` registers ``cv2x/Mobility-v0`` and ``-v1`` (``pettingzoo.make("parallel", ...)``
+``import cv2x_marl`` registers ``cv2x/Mobility-v0``, ``-v1`` and ``-v2`` (``pettingzoo.make("parallel", ...)``
 and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium envs ``cv2x/SingleMover-v0``
-and ``-v1``.
+``-v1`` and ``-v2``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 
 from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
 
-from cv2x_marl.env.mobility_env import MobilityEnv, mobility_v1
+from cv2x_marl.env.mobility_env import MobilityEnv, mobility_v1, mobility_v2
 from cv2x_marl.env.observation import ObservationLayout
 
 
@@ -36,6 +37,16 @@ def env_v1(**kwargs: Any) -> Any:
     return parallel_to_aec(mobility_v1(**kwargs))
 
 
+def parallel_env_v2(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v2``: the ParallelEnv with observation version 2 and improvement rewards."""
+    return mobility_v2(**kwargs)
+
+
+def env_v2(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v2`` with the order-enforcing wrapper."""
+    return parallel_to_aec(mobility_v2(**kwargs))
+
+
 def raw_env(**kwargs: Any) -> Any:
     """AEC version without wrappers."""
     return parallel_to_aec_wrapper(MobilityEnv(**kwargs))
@@ -46,4 +57,14 @@ def env(**kwargs: Any) -> Any:
     return parallel_to_aec(MobilityEnv(**kwargs))
 
 
-__all__ = ["MobilityEnv", "ObservationLayout", "env", "env_v1", "parallel_env", "parallel_env_v1", "raw_env"]
+__all__ = [
+    "MobilityEnv",
+    "ObservationLayout",
+    "env",
+    "env_v1",
+    "env_v2",
+    "parallel_env",
+    "parallel_env_v1",
+    "parallel_env_v2",
+    "raw_env",
+]

@@ -30,6 +30,9 @@ REWARDS = ("individual", "team", "mixed")
 #: ``utility``: the reward of a step is the utility after it (v0); ``improvement``: its change over
 #: the step, a potential-based shaping whose episode sum is final minus start utility
 REWARD_FORMS = ("utility", "improvement")
+#: ``offset``: the action is the step (times ``max_step_m``); ``plan_residual``: the action is added to
+#: the step towards the observed plan (``clip((plan - position) / max_step_m, -1, 1)``) before clipping
+ACTION_MODES = ("offset", "plan_residual")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 
@@ -63,14 +66,17 @@ class MobilityEnv(ParallelEnv):
         roi: keep vehicles inside the region of interest (the road box).
         truth_los: LOS state of moved links (``snapshot``, ``geometry``, ``always``).
         render_mode: ``rgb_array``, ``human`` or None.
-        observation: observation version (0 or 1, see :mod:`cv2x_marl.env.observation`).
-        privileged: version 1 only: also observe the true success of every neighbour link (for
+        observation: observation version (0, 1 or 2, see :mod:`cv2x_marl.env.observation`).
+        privileged: versions 1 and 2 only: also observe the true success of every neighbour link (for
             upper-bound studies; a vehicle cannot know it).
         reward_form: ``utility`` (the reward is the utility after the step) or ``improvement``
             (its change over the step: the episode's rewards sum to final minus start).
         settle_steps: the last ``settle_steps`` steps of an episode ignore the actions (vehicles
             stay where they are, the reward counts where they ended up).
         model: the two-distance model of observation version 1 (``paper-table2`` or a model file).
+        action_mode: ``offset`` (the action is the step) or ``plan_residual`` (observation >= 1,
+            snapshot mode: the action corrects the straight step towards the observed plan, so a zero
+            action follows the plan; residual policy learning, Silver et al. 2018).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -104,6 +110,7 @@ class MobilityEnv(ParallelEnv):
         reward_form: str = "utility",
         settle_steps: int = 0,
         model: str = "paper-table2",
+        action_mode: str = "offset",
     ) -> None:
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
@@ -117,11 +124,20 @@ class MobilityEnv(ParallelEnv):
         _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
         _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
         _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
-        _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1", observation)
+        _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1 | 2", observation)
         _check(
-            "privileged", isinstance(privileged, bool) and (observation >= 1 or not privileged), "bool (v1)", privileged
+            "privileged",
+            isinstance(privileged, bool) and (observation >= 1 or not privileged),
+            "bool (observation >= 1)",
+            privileged,
         )
         _check("reward_form", reward_form in REWARD_FORMS, " | ".join(REWARD_FORMS), reward_form)
+        _check(
+            "action_mode",
+            action_mode in ACTION_MODES and (action_mode == "offset" or (observation >= 1 and mode == "snapshot")),
+            " | ".join(ACTION_MODES) + " (plan_residual: observation >= 1, snapshot mode)",
+            action_mode,
+        )
         _check(
             "settle_steps",
             isinstance(settle_steps, int) and 0 <= settle_steps < max_cycles,
@@ -163,6 +179,7 @@ class MobilityEnv(ParallelEnv):
             n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
         )
         self.reward_form = reward_form
+        self.action_mode = action_mode
         self.settle_steps = settle_steps
         self.model_name = model
         self.model: Any = None
@@ -237,6 +254,8 @@ class MobilityEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished episode: call reset()")
         act = self._decode(actions)
         clipped: NDArray[np.bool_] = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
+        if self.action_mode == "plan_residual":
+            act = act + np.clip((self.plan_m - self.positions_m) / self.max_step_m, -1.0, 1.0)
         offsets = np.minimum(np.maximum(act, -1.0), 1.0) * self._step_scale_m
         if self.t >= self.max_cycles - self.settle_steps:
             offsets = np.zeros_like(offsets)  # settle phase: vehicles stay where they are
@@ -307,6 +326,8 @@ class MobilityEnv(ParallelEnv):
         if not np.isfinite(act).all():
             raise ValueError(f"action of {name} is not finite: {act.tolist()}")
         clipped = bool(((act < -1.0) | (act > 1.0)).any())
+        if self.action_mode == "plan_residual":
+            act = act + np.clip((self.plan_m[i] - self.positions_m[i]) / self.max_step_m, -1.0, 1.0)
         offset = np.minimum(np.maximum(act, -1.0), 1.0) * self.max_step_m
         if self.t >= self.max_cycles - self.settle_steps:
             offset = np.zeros(2)
@@ -454,7 +475,7 @@ class MobilityEnv(ParallelEnv):
         return u.copy() if self.normalise_reward else u / np.maximum(self.target.sum(axis=1), 1)
 
     def _reset_v1_state(self) -> None:
-        from cv2x_marl.policies.optimum import model_plan, reachable_set
+        from cv2x_marl.policies.optimum import model_plan, reachable_set, sensing_plan
         from cv2x_marl.policies.scripted import decode_observations
 
         self._u_now = self._per_receiver(self.u)
@@ -464,7 +485,9 @@ class MobilityEnv(ParallelEnv):
         self._best_m = self.positions_m.copy()
         self.plan_m = self.positions_m.copy()
         movers = np.flatnonzero(self.mover_mask)
-        if self.mode == "snapshot" and movers.size:
+        if self.mode == "snapshot" and movers.size and self.layout.version >= 2:
+            self.plan_m[movers] = sensing_plan(self, movers)
+        elif self.mode == "snapshot" and movers.size:
             v0 = self._build(movers)[:, : self.layout.v0_size]
             reaches = [reachable_set(self, int(i)) for i in movers]
             inputs = decode_observations(v0, self.layout)
@@ -583,3 +606,25 @@ class MobilityEnvV1(MobilityEnv):
 def mobility_v1(**kwargs: Any) -> MobilityEnv:
     """``cv2x/Mobility-v1`` (:class:`MobilityEnvV1`)."""
     return MobilityEnvV1(**kwargs)
+
+
+#: what ``cv2x/Mobility-v2`` and ``cv2x/SingleMover-v2`` change from the v0 defaults: observation
+#: version 2 (the plan from the mover's sensing estimate), improvement rewards per target receiver
+V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
+#: the defaults of each env version (v0: the constructor's own)
+VERSION_DEFAULTS: dict[str, dict[str, Any]] = {"v0": {}, "v1": V1_DEFAULTS, "v2": V2_DEFAULTS}
+
+
+class MobilityEnvV2(MobilityEnv):
+    """``cv2x/Mobility-v2``: :class:`MobilityEnv` with :data:`V2_DEFAULTS`; keyword arguments as
+    :class:`MobilityEnv`."""
+
+    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v2"}
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**{**V2_DEFAULTS, **kwargs})
+
+
+def mobility_v2(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v2`` (:class:`MobilityEnvV2`)."""
+    return MobilityEnvV2(**kwargs)

@@ -22,6 +22,11 @@ values (so the v0 part and GBMU's decoding stay as they are):
     its change, the best utility so far and where it was, the model's best reachable position
     and how far the mover can still go.
 
+Version 2 (``cv2x/Mobility-v2``, ``cv2x/SingleMover-v2``) has the layout and entries of version 1;
+only the plan (``plan_dx``, ``plan_dy``) changes: it is the best reachable position under the
+mover's own sensing estimate of its links (measured RSRP of its links, the others' positions and
+resources; :meth:`cv2x_marl.sim.evaluate.SnapshotLinks.sensed_row`) instead of the two-distance model.
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
@@ -49,12 +54,12 @@ OWN_V1_NAMES = (
     "best_minus_now",  # best utility seen this episode - now (>= 0)
     "best_dx",  # position where the best was seen, relative to now (x, y)
     "best_dy",
-    "plan_dx",  # the model's best reachable position, relative to now (x, y)
+    "plan_dx",  # the planned best reachable position, relative to now (x, y): v1 model, v2 sensing
     "plan_dy",
     "reach",  # steps left x max_step_m: how far the mover can still go
 )
 OWN_V1 = len(OWN_V1_NAMES)
-VERSIONS = (0, 1)
+VERSIONS = (0, 1, 2)
 
 
 @dataclass(frozen=True)

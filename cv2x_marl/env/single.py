@@ -2,7 +2,7 @@
 
 Vehicle 0 moves; every other vehicle stays where the snapshot put it. Observation, action,
 reward and info are vehicle 0's in :class:`cv2x_marl.env.MobilityEnv` with ``movers=[0]``
-(``-v1``: with :data:`~cv2x_marl.env.mobility_env.V1_DEFAULTS`).
+(``-v1``, ``-v2``: with :data:`~cv2x_marl.env.mobility_env.V1_DEFAULTS`, ``V2_DEFAULTS``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.env.mobility_env import V1_DEFAULTS, MobilityEnv
+from cv2x_marl.env.mobility_env import VERSION_DEFAULTS, MobilityEnv
 
 AGENT = "vehicle_0"
 
@@ -28,8 +28,7 @@ class SingleMoverEnv(gym.Env):
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         if "movers" in kwargs:
             raise ValueError(f"invalid env argument movers: SingleMover-v{self.version} always moves vehicle 0")
-        if self.version >= 1:
-            kwargs = {**V1_DEFAULTS, **kwargs}
+        kwargs = {**VERSION_DEFAULTS[f"v{self.version}"], **kwargs}
         self.par = MobilityEnv(movers=[0], render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
         self.observation_space = self.par.observation_space(AGENT)
@@ -66,3 +65,10 @@ class SingleMoverEnvV1(SingleMoverEnv):
     """``cv2x/SingleMover-v1``: observation version 1 and improvement rewards (see ``docs/env.md``)."""
 
     version = 1
+
+
+class SingleMoverEnvV2(SingleMoverEnv):
+    """``cv2x/SingleMover-v2``: observation version 2 (the plan from the mover's sensing estimate) and
+    improvement rewards (see ``docs/env.md``)."""
+
+    version = 2

@@ -20,24 +20,30 @@ from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
 from cv2x_marl.rng import derive_seeds
 
-ENV_IDS = ("cv2x/Mobility-v0", "cv2x/SingleMover-v0", "cv2x/Mobility-v1", "cv2x/SingleMover-v1")
+ENV_IDS = (
+    "cv2x/Mobility-v0",
+    "cv2x/SingleMover-v0",
+    "cv2x/Mobility-v1",
+    "cv2x/SingleMover-v1",
+    "cv2x/Mobility-v2",
+    "cv2x/SingleMover-v2",
+)
 
 
 def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
-    """The parallel env behind a registered id (SingleMover: only vehicle 0 moves; v1: V1_DEFAULTS)."""
-    from cv2x_marl.env.mobility_env import V1_DEFAULTS
+    """The parallel env behind a registered id (SingleMover: only vehicle 0 moves; v1, v2: their defaults)."""
+    from cv2x_marl.env.mobility_env import VERSION_DEFAULTS
 
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
     if env_id.startswith("cv2x/SingleMover"):
         kwargs = {**kwargs, "movers": [0]}
-    if env_id.endswith("-v1"):
-        kwargs = {**V1_DEFAULTS, **kwargs}
+    kwargs = {**VERSION_DEFAULTS[env_id.rsplit("-", 1)[1]], **kwargs}
     return MobilityEnv(**kwargs)
 
 
 def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", delta: float = 100.0) -> Policy:
-    """``static | random | gbmu | greedy | oracle | planner | optimum | ppo:PATH``."""
+    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH``."""
     from cv2x_marl.experiments.dataset import load_model
     from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
 
@@ -54,14 +60,15 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", d
         from cv2x_marl.policies.optimum import OptimumPolicy
 
         return OptimumPolicy(env)
-    if spec == "planner":
+    if spec in ("planner", "sensing"):
         from cv2x_marl.policies.optimum import PlannerPolicy
 
-        return PlannerPolicy(env, load_model(Path(model_path)))
+        estimator = "model" if spec == "planner" else "sensing"
+        return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)
     if spec.startswith("ppo:"):
         return PpoPolicy(Path(spec[4:]), env)
     raise ValueError(
-        f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, planner, optimum, ppo:PATH"
+        f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, planner, sensing, optimum, ppo:PATH"
     )
 
 
@@ -117,7 +124,16 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
         return None, {}
     try:
         cfg = json.loads(cfg_path.read_text())
-        keep = ("observation", "privileged", "model", "n_neighbours", "scale_m", "settle_steps", "reward_form")
+        keep = (
+            "observation",
+            "privileged",
+            "model",
+            "n_neighbours",
+            "scale_m",
+            "settle_steps",
+            "reward_form",
+            "action_mode",
+        )
         return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"cannot read the training configuration {cfg_path}: {exc}") from exc

@@ -17,7 +17,7 @@ import numpy as np
 from cv2x_marl.config import preset
 from cv2x_marl.io import write_json
 
-SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "optimum")
+SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
 ENVS = {"single": "cv2x/SingleMover-v1", "multi": "cv2x/Mobility-v1"}
 KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "n_prr_drop")
 

@@ -48,19 +48,31 @@ class ReachableSet:
         radius_m: half-width of the Chebyshev square (m).
         max_drift_m: radius of the drift disc around the start (None: no disc).
         box_m: [2] upper corner of the region of interest [0, box] (None: unbounded).
+        period_m: [2] torus period of the link geometry per axis (inf: no wrap; None: no torus).
     """
 
     start_m: FloatArray
     radius_m: float
     max_drift_m: float | None = None
     box_m: FloatArray | None = None
+    period_m: FloatArray | None = None
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:
-        """Lower and upper corner of the axis-aligned box that holds the set."""
+        """Lower and upper corner of the axis-aligned box that holds the set (the part worth searching).
+
+        When distances wrap (``period_m``) and the set, unbounded by drift or box, spans a whole period
+        of an axis, every position has an image within half a period of the start with the same
+        links: the box shrinks to that period window.
+        """
         r = self.radius_m if self.max_drift_m is None else min(self.radius_m, self.max_drift_m)
         lo, hi = self.start_m - r, self.start_m + r
         if self.box_m is not None:
             lo, hi = np.maximum(lo, 0.0), np.minimum(hi, self.box_m)
+        elif self.period_m is not None and self.max_drift_m is None:
+            half = 0.5 * np.asarray(self.period_m, dtype=np.float64)
+            wraps = np.isfinite(half) & (r >= half)
+            lo = np.where(wraps, self.start_m - half, lo)
+            hi = np.where(wraps, self.start_m + half, hi)
         return lo, hi
 
     def contains(self, points_m: FloatArray, tol_m: float = 1e-9) -> NDArray[np.bool_]:
@@ -131,11 +143,13 @@ def best_reachable(
 def reachable_set(env: Any, i: int) -> ReachableSet:
     """:class:`ReachableSet` of vehicle ``i`` of a snapshot-mode env from its episode start."""
     steps_left = max(env.max_cycles - getattr(env, "settle_steps", 0) - env.t, 0)  # moving steps left
+    wrap = getattr(env, "_wrap_road", None)
     return ReachableSet(
         np.asarray(env.start_m[i], dtype=np.float64),
         float(steps_left * env.max_step_m),
         env.max_drift_m,
         np.asarray(env.box_m, dtype=np.float64) if env.roi else None,
+        None if wrap is None else np.asarray(wrap.periodic_box_m, dtype=np.float64),
     )
 
 
@@ -253,6 +267,23 @@ def model_plan(
     return out
 
 
+def sensing_plan(env: Any, movers: list[int] | NDArray[np.int64], grid_m: float = 20.0, refine: int = 4) -> FloatArray:
+    """[B, 2] each mover's best reachable position under its own sensing estimate (the ``-v2`` plan).
+
+    The estimate is :meth:`cv2x_marl.sim.evaluate.SnapshotLinks.sensed_row`: the mover's links as it
+    can know them from Mode 4 sensing (RSRP of its own links, positions and resources of the others),
+    with the shadowing between other vehicles unknown (0 dB). Each mover is planned alone, the others
+    where they are now. Global grid of pitch ``grid_m`` over the :func:`reachable_set`, the ``refine``
+    best points refined twice (:func:`best_reachable`).
+    """
+    pos = np.asarray(env.positions_m, dtype=np.float64)
+    out = np.empty((len(movers), 2))
+    for b, i in enumerate(movers):
+        row = env.links.sensed_row(int(i), pos)
+        out[b], _ = best_reachable(row, reachable_set(env, int(i)), env.p_min, grid_m=grid_m, refine=refine)
+    return out
+
+
 class PlannerPolicy:
     """Scripted, not privileged: drive straight to the model's best reachable position.
 
@@ -260,13 +291,29 @@ class PlannerPolicy:
     the two-distance model, like GBMU) by a global search of the model's predicted utility over the
     reachable set (:func:`model_plan`), instead of GBMU's local gradient steps. It shows how much of
     GBMU's gap to the optimum is the algorithm (local steps) and how much the model.
+
+    With ``estimator="sensing"`` (``--policy sensing``) the search runs on the mover's sensing
+    estimate instead of the two-distance model (:func:`sensing_plan`): still not privileged (it reads
+    only what a vehicle measures), it shows how much of the rest is the model.
+
+    Args:
+        env: the env it acts in (read, never stepped).
+        model: the two-distance model (``estimator="model"``).
+        estimator: ``model`` or ``sensing``.
     """
 
     name = "planner"
 
-    def __init__(self, env: Any, model: Any) -> None:
+    def __init__(self, env: Any, model: Any, estimator: str = "model") -> None:
+        if estimator not in ("model", "sensing"):
+            raise ValueError(f"invalid planner estimator {estimator!r}; allowed: model, sensing")
+        if estimator == "sensing" and getattr(env, "mode", "snapshot") != "snapshot":
+            raise ValueError("the sensing planner needs the env in snapshot mode")
         self.env = env
         self.model = model
+        self.estimator = estimator
+        if estimator == "sensing":
+            self.name = "sensing"
         self.targets_m: dict[str, FloatArray] = {}
 
     def reset(self, seed: int | None = None) -> None:
@@ -278,11 +325,14 @@ class PlannerPolicy:
         env = self.env
         agents = list(observations)
         if not self.targets_m:
-            v0 = np.stack([observations[a][: env.layout.v0_size] for a in agents])
             idx = [env.agent_index[a] for a in agents]
-            pos = np.asarray(env.positions_m)[idx]
-            reaches = [reachable_set(env, i) for i in idx]
-            plan = model_plan(decode_observations(v0, env.layout), pos, reaches, self.model, env.p_min)
+            if self.estimator == "sensing":
+                plan = sensing_plan(env, idx)
+            else:
+                v0 = np.stack([observations[a][: env.layout.v0_size] for a in agents])
+                pos = np.asarray(env.positions_m)[idx]
+                reaches = [reachable_set(env, i) for i in idx]
+                plan = model_plan(decode_observations(v0, env.layout), pos, reaches, self.model, env.p_min)
             self.targets_m = dict(zip(agents, plan, strict=True))
         out: Actions = {}
         for a in agents:

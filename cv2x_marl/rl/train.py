@@ -22,7 +22,14 @@ import numpy as np
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.rl.errors import TrainError
 
-ENV_IDS = ("cv2x/SingleMover-v0", "cv2x/Mobility-v0", "cv2x/SingleMover-v1", "cv2x/Mobility-v1")
+ENV_IDS = (
+    "cv2x/SingleMover-v0",
+    "cv2x/Mobility-v0",
+    "cv2x/SingleMover-v1",
+    "cv2x/Mobility-v1",
+    "cv2x/SingleMover-v2",
+    "cv2x/Mobility-v2",
+)
 
 
 @dataclass(frozen=True)
@@ -40,6 +47,8 @@ class PpoConfig:
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     net_arch: tuple[int, ...] = (128, 128)
+    #: initial log standard deviation of the Gaussian actions (SB3's default 0: std 1)
+    log_std_init: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -155,17 +164,18 @@ def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progres
             self.gbmu: dict[str, Any] | None = None
             self.next = 0
 
-        def _eval(self, policy: Any) -> dict[str, Any]:
-            return evaluate(cfg.env_id, policy, cfg.eval_episodes, cfg.eval_seed, None, cfg.env, progress=False)
+        def _eval(self, policy: Any, env: dict[str, Any]) -> dict[str, Any]:
+            return evaluate(cfg.env_id, policy, cfg.eval_episodes, cfg.eval_seed, None, env, progress=False)
 
         def _on_training_start(self) -> None:
-            self.gbmu = self._eval("gbmu")
+            # GBMU acts with plain offsets, whatever action mode the learned mover trains with
+            self.gbmu = self._eval("gbmu", {**cfg.env, "action_mode": "offset"})
             self.next = self.num_timesteps
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
                 self.next = self.num_timesteps + cfg.eval_every
-                res = self._eval(PpoPolicy(self.model))
+                res = self._eval(PpoPolicy(self.model), cfg.env)
                 assert self.gbmu is not None
                 row = {
                     "timesteps": self.num_timesteps,
@@ -262,7 +272,7 @@ def train(
             ent_coef=p.ent_coef,
             vf_coef=p.vf_coef,
             max_grad_norm=p.max_grad_norm,
-            policy_kwargs={"net_arch": list(p.net_arch)},
+            policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
             tensorboard_log=str(run_dir / "tb"),
             seed=seed,
             device="cpu",

@@ -10,7 +10,9 @@ for SB3, this adapter does explicitly:
 * truncation: when the episode of a copy ends by ``max_cycles``, every agent's info carries
   ``TimeLimit.truncated = True`` (and ``terminal_observation``), so SB3 bootstraps the value of
   the last state instead of treating the time limit as a terminal state;
-* auto-reset: the copy is reset at once and the first observation of the next episode is returned.
+* auto-reset: the copy is reset at once and the first observation of the next episode is returned;
+* one mover per copy (``SingleMover``): steps go through :meth:`MobilityEnv.step_mover`, bit-identical
+  to the full step (tested) and several times faster.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ class AgentsVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self.render_mode = first.render_mode
         self._obs_shape: tuple[int, ...] = tuple(first.observation_space(self.movers[0]).shape)
+        #: every copy steps through ``step_mover`` (one mover, snapshot mode, individual reward)
+        self.fast = first.fast_mover is not None and first.render_mode is None
         super().__init__(self.k * self.m, first.observation_space(self.movers[0]), first.action_space(self.movers[0]))
 
     # ------------------------------------------------------------------ reset
@@ -81,6 +85,8 @@ class AgentsVecEnv(VecEnv):
         rewards = np.empty(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        if self.fast:
+            return self._step_fast(obs_out, rewards, dones, infos)
         for k, env in enumerate(self.envs):
             acts = {a: self._zero for a in env.agents}
             for m, a in enumerate(self.movers):
@@ -99,6 +105,19 @@ class AgentsVecEnv(VecEnv):
             if dones[k * self.m]:
                 new = self._reset_copy(k, None)
                 obs_out[k * self.m : (k + 1) * self.m] = [new[a] for a in self.movers]
+        return obs_out, rewards, dones, infos
+
+    def _step_fast(
+        self, obs_out: np.ndarray, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+    ) -> VecEnvStepReturn:
+        assert self._actions is not None
+        for k, env in enumerate(self.envs):
+            ob, reward, done, info = env.step_mover(self._actions[k])
+            rewards[k], obs_out[k], infos[k], dones[k] = reward, ob, dict(info), done
+            if done:
+                infos[k]["TimeLimit.truncated"] = True
+                infos[k]["terminal_observation"] = ob
+                obs_out[k] = self._reset_copy(k, None)[self.movers[0]]
         return obs_out, rewards, dones, infos
 
     def close(self) -> None:

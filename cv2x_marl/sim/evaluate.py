@@ -369,6 +369,36 @@ class SnapshotLinks:
             raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
         return MoverRow(self, int(mover), pos)
 
+    def sensed_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
+        """The mover's own estimate of its links (what it can know from Mode 4 sensing), not the truth.
+
+        A vehicle that senses the channel for the 1000 ms window of TS 36.213 clause 14.1.1.6 knows
+        the positions of its neighbours (their CAMs), their resources (decoded SCI, hence half duplex
+        and who shares its resource) and the mean received power (RSRP) of each neighbour; by channel
+        reciprocity the RSRP gives the path gain, shadowing included, of each of its own links. It
+        cannot measure the channel between two other vehicles. The estimate is therefore the true row
+        (:meth:`mover_row`) except for the interference at each receiver, which is recomputed with the
+        shadowing of every pair that does not include the mover set to 0 dB (its median). LOS states
+        are the snapshot's (in the Manhattan grid they follow from the road map). Used by the
+        ``-v2`` observation and the ``sensing`` planner; compiled kernels only.
+
+        Args:
+            mover: index of the transmitter that moves.
+            positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
+        """
+        if not self.compiled:
+            raise ValueError("sensed_row needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+        row = self.mover_row(mover, positions_m)
+        (period, los, gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        own = np.zeros((self.n, self.n), dtype=bool)
+        own[mover, :] = own[:, mover] = True
+        sensed_gain = np.ascontiguousarray(np.where(own, gain, self.eirp_dbm))
+        interference = kernels.mover_interference(
+            row.positions_m, period, los, sensed_gain, wb1, range2, idx, val, int(mover)
+        )
+        row._args = (*row._args[:7], interference, *row._args[8:])
+        return row
+
 
 class MoverRow:
     """Row ``mover`` of :meth:`SnapshotLinks.evaluate` for many positions of the mover at once.

@@ -69,6 +69,25 @@ def test_adapter_truncation_and_terminal_observation() -> None:
     assert not np.array_equal(term, obs)
 
 
+def test_adapter_one_mover_path_is_bit_identical_to_the_full_step() -> None:
+    fast, full = _vec(movers=[0]), _vec(movers=[0])
+    full.fast = False
+    assert fast.fast
+    for v in (fast, full):
+        v.seed(2)
+    np.testing.assert_array_equal(fast.reset(), full.reset())
+    rng = np.random.default_rng(3)
+    for _ in range(12):  # two auto-resets (max_cycles = 5)
+        act = rng.uniform(-1.3, 1.3, (2, 2)).astype(np.float32)
+        a, b = fast.step(act), full.step(act)
+        for x, y in zip(a[:3], b[:3], strict=True):
+            np.testing.assert_array_equal(x, y)
+        for ia, ib in zip(a[3], b[3], strict=True):
+            assert ia.keys() == ib.keys()
+            for key in ia:
+                np.testing.assert_array_equal(ia[key], ib[key])
+
+
 def test_ppo_seed_gives_identical_parameters(tmp_path: Path) -> None:
     from stable_baselines3 import PPO
 

@@ -1,0 +1,106 @@
+"""End-to-end training throughput: SB3 PPO on ``cv2x/SingleMover-*`` next to Gymnasium's Pendulum-v1.
+
+Both runs use the PPO settings and the number of env copies of the shipped single-mover config
+(``agents/configs/ppo_single_v2.yaml`` unless ``--config``), one torch thread, no callbacks, and
+are measured in the same process one after the other, so the ratio compares the env's cost on the
+same machine state (goal of issue 10: ours >= 0.7x Pendulum). Ours goes through the
+:class:`~cv2x_marl.rl.vec_env.AgentsVecEnv` that ``cv2x-marl train`` uses (one-mover fast path);
+Pendulum through SB3's ``DummyVecEnv``. Also timed alone: the env part of ours (random actions
+through the same VecEnv, resets included). Best of ``--repeats``. Writes ``results/bench_train.json``.
+
+    python benchmarks/bench_train.py [--timesteps 32768] [--repeats 2] [--env cv2x/SingleMover-v2]
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from cv2x_marl.io import write_json  # noqa: E402
+
+
+def ppo_steps_per_s(vec: Any, cfg: Any, timesteps: int, seed: int) -> float:
+    from stable_baselines3 import PPO
+
+    p = cfg.ppo
+    model = PPO(
+        "MlpPolicy",
+        vec,
+        learning_rate=p.learning_rate,
+        n_steps=p.n_steps,
+        batch_size=p.batch_size,
+        n_epochs=p.n_epochs,
+        gamma=p.gamma,
+        gae_lambda=p.gae_lambda,
+        clip_range=p.clip_range,
+        ent_coef=p.ent_coef,
+        policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
+    t0 = time.perf_counter()
+    model.learn(timesteps)
+    return model.num_timesteps / (time.perf_counter() - t0)
+
+
+def env_steps_per_s(vec: Any, steps: int) -> float:
+    rng = np.random.default_rng(0)
+    acts = rng.uniform(-1, 1, (64, vec.num_envs, 2)).astype(np.float32)
+    vec.seed(0)
+    vec.reset()
+    t0 = time.perf_counter()
+    for k in range(steps):
+        vec.step(acts[k % 64])
+    return steps * vec.num_envs / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    import gymnasium
+    import torch
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from cv2x_marl.rl.train import load_train_config
+    from cv2x_marl.rl.train import make_vec_env as make_ours
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--config", default="agents/configs/ppo_single_v2.yaml")
+    ap.add_argument("--env", default=None, help="override the config's env id")
+    ap.add_argument("--timesteps", type=int, default=32_768)
+    ap.add_argument("--repeats", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    cfg = load_train_config(Path(args.config), env_id=args.env)
+    ours = make_ours(cfg)
+    ours.seed(0)
+    pend = make_vec_env("Pendulum-v1", n_envs=cfg.copies, seed=0)
+    rows: dict[str, Any] = {
+        "env_id": cfg.env_id,
+        "config": args.config,
+        "copies": cfg.copies,
+        "timesteps": args.timesteps,
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs",
+        "gymnasium": gymnasium.__version__,
+        "torch": torch.__version__,
+    }
+    rows["ours_env_only_steps_per_s"] = max(env_steps_per_s(ours, 2_000) for _ in range(args.repeats))
+    rows["ours_ppo_steps_per_s"] = max(ppo_steps_per_s(ours, cfg, args.timesteps, 0) for _ in range(args.repeats))
+    rows["pendulum_ppo_steps_per_s"] = max(ppo_steps_per_s(pend, cfg, args.timesteps, 0) for _ in range(args.repeats))
+    rows["ratio_ours_to_pendulum"] = rows["ours_ppo_steps_per_s"] / rows["pendulum_ppo_steps_per_s"]
+    for k, v in rows.items():
+        print(f"{k}: {v:,.2f}" if isinstance(v, float) else f"{k}: {v}")
+    write_json(Path("results/bench_train.json"), rows)
+
+
+if __name__ == "__main__":
+    main()
