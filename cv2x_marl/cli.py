@@ -172,6 +172,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         "max_cycles": args.max_cycles,
         "max_step_m": args.max_step,
     }
+    if args.replan_every is not None:
+        env_kwargs["replan_every"] = args.replan_every
     summary = evaluate(
         args.env,
         args.policy,
@@ -306,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--env",
         default=None,
         choices=list(EVAL_ENV_IDS),
-        help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v1",
+        help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v2",
     )
     p.add_argument(
         "--policy",
@@ -322,6 +324,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
     p.add_argument("--max-cycles", type=int, default=100, help="steps per episode")
     p.add_argument("--max-step", type=float, default=5.0, help="offset of a full action (m)")
+    p.add_argument(
+        "--replan-every",
+        type=int,
+        default=None,
+        help="-v2 envs: recompute the sensing plan every N steps (default: a ppo:PATH model's setting, else once)",
+    )
     p.add_argument("--model", type=Path, default=Path("paper-table2"), help="two-distance model for gbmu/greedy")
     p.add_argument("--delta", type=float, default=100.0, help="GBMU/greedy/oracle step size per env step")
     p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")

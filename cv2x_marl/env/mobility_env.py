@@ -74,6 +74,8 @@ class MobilityEnv(ParallelEnv):
         settle_steps: the last ``settle_steps`` steps of an episode ignore the actions (vehicles
             stay where they are, the reward counts where they ended up).
         model: the two-distance model of observation version 1 (``paper-table2`` or a model file).
+        replan_every: observation version 2: recompute the sensing plan every ``replan_every`` steps
+            from where every vehicle is then (None: once, at reset).
         action_mode: ``offset`` (the action is the step) or ``plan_residual`` (observation >= 1,
             snapshot mode: the action corrects the straight step towards the observed plan, so a zero
             action follows the plan; residual policy learning, Silver et al. 2018).
@@ -111,6 +113,7 @@ class MobilityEnv(ParallelEnv):
         settle_steps: int = 0,
         model: str = "paper-table2",
         action_mode: str = "offset",
+        replan_every: int | None = None,
     ) -> None:
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
@@ -178,7 +181,16 @@ class MobilityEnv(ParallelEnv):
         self.layout = ObservationLayout(
             n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
         )
+        _check(
+            "replan_every",
+            replan_every is None
+            or (isinstance(replan_every, int) and not isinstance(replan_every, bool) and replan_every >= 1),
+            "null or an integer >= 1 (observation 2)",
+            replan_every,
+        )
+        _check("replan_every", replan_every is None or observation >= 2, "null unless observation is 2", replan_every)
         self.reward_form = reward_form
+        self.replan_every = replan_every
         self.action_mode = action_mode
         self.settle_steps = settle_steps
         self.model_name = model
@@ -281,6 +293,7 @@ class MobilityEnv(ParallelEnv):
         rewards_arr = self._step_rewards()
         if self.layout.version >= 1:
             self._update_v1_state()
+            self._maybe_replan()
         done = self.t >= self.max_cycles
         agents = self.agents
         obs = self._observations()
@@ -349,6 +362,7 @@ class MobilityEnv(ParallelEnv):
         reward = float(self._step_rewards()[i])
         if self.layout.version >= 1:
             self._update_v1_state()
+            self._maybe_replan()
         done = self.t >= self.max_cycles
         rows = np.array([i], dtype=np.int64)
         obs = self._build(rows)
@@ -492,6 +506,18 @@ class MobilityEnv(ParallelEnv):
             reaches = [reachable_set(self, int(i)) for i in movers]
             inputs = decode_observations(v0, self.layout)
             self.plan_m[movers] = model_plan(inputs, self.positions_m[movers], reaches, self.model, self.p_min)
+
+    def _maybe_replan(self) -> None:
+        """Observation version 2 with ``replan_every``: a new sensing plan from where everyone is."""
+        if self.replan_every is None or self.mode != "snapshot" or self.t % self.replan_every:
+            return
+        if self.t >= self.max_cycles - self.settle_steps:
+            return
+        from cv2x_marl.policies.optimum import sensing_plan
+
+        movers = np.flatnonzero(self.mover_mask)
+        if movers.size:
+            self.plan_m[movers] = sensing_plan(self, movers)
 
     def _update_v1_state(self) -> None:
         self._u_prev = self._u_now

@@ -115,8 +115,9 @@ class PpoPolicy:
 
 
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
-    """The env id and the options that shape observations of a model saved by ``cv2x-marl train``
-    (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3 file)."""
+    """The env id and the options that shape observations, actions and dynamics of a model saved by
+    ``cv2x-marl train`` (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3
+    file). The reward options are not taken: every method is judged on the same utility."""
     import json
 
     cfg_path = Path(path).parent / "train_config.json"
@@ -133,6 +134,11 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
             "settle_steps",
             "reward_form",
             "action_mode",
+            "replan_every",
+            "max_cycles",
+            "max_step_m",
+            "max_drift_m",
+            "roi",
         )
         return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
     except (ValueError, KeyError, TypeError) as exc:
@@ -165,7 +171,7 @@ def evaluate(
 
     Args:
         env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on, else
-            ``cv2x/SingleMover-v1``.
+            ``cv2x/SingleMover-v2``.
         vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
             (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
             utility gain over the optimum's on the same episodes.
@@ -179,7 +185,7 @@ def evaluate(
         trained_id, trained_env = trained_env_options(Path(policy_spec[4:]))
         env_id = env_id or trained_id
         env_kwargs = {**trained_env, **env_kwargs}
-    env_id = env_id or "cv2x/SingleMover-v1"
+    env_id = env_id or "cv2x/SingleMover-v2"
     env = make_eval_env(env_id, **env_kwargs)
     if isinstance(policy_spec, str):
         policy = make_policy(policy_spec, env, model_path, delta)

@@ -49,6 +49,8 @@ class ReachableSet:
         max_drift_m: radius of the drift disc around the start (None: no disc).
         box_m: [2] upper corner of the region of interest [0, box] (None: unbounded).
         period_m: [2] torus period of the link geometry per axis (inf: no wrap; None: no torus).
+        drift_center_m: [2] centre of the drift disc (None: ``start_m``; differs when a plan is
+            made mid-episode from the current position).
     """
 
     start_m: FloatArray
@@ -56,6 +58,10 @@ class ReachableSet:
     max_drift_m: float | None = None
     box_m: FloatArray | None = None
     period_m: FloatArray | None = None
+    drift_center_m: FloatArray | None = None
+
+    def _drift_center(self) -> FloatArray:
+        return self.start_m if self.drift_center_m is None else np.asarray(self.drift_center_m, dtype=np.float64)
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:
         """Lower and upper corner of the axis-aligned box that holds the set (the part worth searching).
@@ -64,8 +70,11 @@ class ReachableSet:
         of an axis, every position has an image within half a period of the start with the same
         links: the box shrinks to that period window.
         """
-        r = self.radius_m if self.max_drift_m is None else min(self.radius_m, self.max_drift_m)
-        lo, hi = self.start_m - r, self.start_m + r
+        lo, hi = self.start_m - self.radius_m, self.start_m + self.radius_m
+        if self.max_drift_m is not None:
+            c = self._drift_center()
+            lo, hi = np.maximum(lo, c - self.max_drift_m), np.minimum(hi, c + self.max_drift_m)
+        r = self.radius_m
         if self.box_m is not None:
             lo, hi = np.maximum(lo, 0.0), np.minimum(hi, self.box_m)
         elif self.period_m is not None and self.max_drift_m is None:
@@ -80,7 +89,8 @@ class ReachableSet:
         d = np.asarray(points_m, dtype=np.float64) - self.start_m
         ok = np.abs(d).max(axis=-1) <= self.radius_m + tol_m
         if self.max_drift_m is not None:
-            ok &= np.hypot(d[..., 0], d[..., 1]) <= self.max_drift_m + tol_m
+            e = np.asarray(points_m, dtype=np.float64) - self._drift_center()
+            ok &= np.hypot(e[..., 0], e[..., 1]) <= self.max_drift_m + tol_m
         if self.box_m is not None:
             p = np.asarray(points_m)
             ok &= np.all((p >= -tol_m) & (p <= self.box_m + tol_m), axis=-1)
@@ -141,15 +151,17 @@ def best_reachable(
 
 
 def reachable_set(env: Any, i: int) -> ReachableSet:
-    """:class:`ReachableSet` of vehicle ``i`` of a snapshot-mode env from its episode start."""
+    """:class:`ReachableSet` of vehicle ``i`` of a snapshot-mode env from where it is now (at reset:
+    its episode start) with the moving steps left; the drift disc stays around the episode start."""
     steps_left = max(env.max_cycles - getattr(env, "settle_steps", 0) - env.t, 0)  # moving steps left
     wrap = getattr(env, "_wrap_road", None)
     return ReachableSet(
-        np.asarray(env.start_m[i], dtype=np.float64),
+        np.array(env.positions_m[i], dtype=np.float64),
         float(steps_left * env.max_step_m),
         env.max_drift_m,
         np.asarray(env.box_m, dtype=np.float64) if env.roi else None,
         None if wrap is None else np.asarray(wrap.periodic_box_m, dtype=np.float64),
+        np.array(env.start_m[i], dtype=np.float64),
     )
 
 
@@ -294,7 +306,9 @@ class PlannerPolicy:
 
     With ``estimator="sensing"`` (``--policy sensing``) the search runs on the mover's sensing
     estimate instead of the two-distance model (:func:`sensing_plan`): still not privileged (it reads
-    only what a vehicle measures), it shows how much of the rest is the model.
+    only what a vehicle measures), it shows how much of the rest is the model. In an observation
+    version 2 env it follows the env's plan, which is the same estimate (and is recomputed with
+    ``replan_every``).
 
     Args:
         env: the env it acts in (read, never stepped).
@@ -324,7 +338,10 @@ class PlannerPolicy:
 
         env = self.env
         agents = list(observations)
-        if not self.targets_m:
+        if self.estimator == "sensing" and env.layout.version >= 2:
+            # the env's own plan is this estimate (and follows its replanning, ``replan_every``)
+            self.targets_m = {a: env.plan_m[env.agent_index[a]] for a in agents}
+        elif not self.targets_m:
             idx = [env.agent_index[a] for a in agents]
             if self.estimator == "sensing":
                 plan = sensing_plan(env, idx)

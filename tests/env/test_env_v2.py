@@ -140,3 +140,45 @@ def test_plan_residual_zero_action_follows_the_plan_and_corrections_add() -> Non
     np.testing.assert_allclose(res.positions_m[0] - start, np.clip(base + correction, -1, 1) * 5.0, atol=1e-9)
     with pytest.raises(ValueError, match="action_mode"):
         MobilityEnv(action_mode="plan_residual", **FAST)  # observation 0 has no plan
+
+
+def test_replanning_uses_where_everyone_is_and_keeps_the_fast_path_exact() -> None:
+    from cv2x_marl.env.single import SingleMoverEnvV2
+
+    env = MobilityEnv(max_cycles=12, replan_every=5, **V2_DEFAULTS, **FAST)
+    env.reset(seed=6)
+    rng = np.random.default_rng(2)
+    for t in range(1, 11):
+        before = env.plan_m.copy()
+        env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+        if t % 5:
+            np.testing.assert_array_equal(env.plan_m, before)
+        else:  # steps 5 and 10: a new plan from the current positions, with the steps left
+            reach = reachable_set(env, 3)
+            np.testing.assert_array_equal(reach.start_m, env.positions_m[3])
+            assert reach.radius_m == (12 - t) * env.max_step_m
+            np.testing.assert_array_equal(env.plan_m, sensing_plan(env, np.arange(env.n)))
+    # one mover: the fast path replans exactly as the full step does
+    fast = SingleMoverEnvV2(max_cycles=12, replan_every=4, **FAST)
+    full = MobilityEnv(movers=[0], max_cycles=12, replan_every=4, **V2_DEFAULTS, **FAST)
+    of, _ = fast.reset(seed=3)
+    og, _ = full.reset(seed=3)
+    zero = np.zeros(2, np.float32)
+    for _ in range(12):
+        act = rng.uniform(-1, 1, 2).astype(np.float32)
+        o1, r1, *_ = fast.step(act)
+        o2, r2, *_ = full.step({a: act if a == "vehicle_0" else zero for a in full.agents})
+        assert r1 == r2["vehicle_0"] and np.array_equal(o1, o2["vehicle_0"])
+    for bad in ({"replan_every": 0, **V2_DEFAULTS}, {"replan_every": 5, "observation": 1}):
+        with pytest.raises(ValueError, match="replan_every"):
+            MobilityEnv(**bad, **FAST)
+
+
+def test_reachable_set_mid_episode_keeps_the_drift_disc_at_the_start() -> None:
+    r = ReachableSet(
+        np.array([20.0, 0.0]), 10.0, max_drift_m=25.0, drift_center_m=np.array([0.0, 0.0])
+    )  # 10 m of steps left from x = 20, never farther than 25 m from the start at 0
+    assert r.contains(np.array([[30.0, 0.0], [24.0, 0.0], [20.0, 10.0]])).tolist() == [False, True, True]
+    lo, hi = r.bounds()
+    np.testing.assert_allclose(lo, [10.0, -10.0])
+    np.testing.assert_allclose(hi, [25.0, 10.0])
