@@ -1,7 +1,7 @@
 """End-to-end training throughput: SB3 PPO on ``cv2x/SingleMover-*`` next to Gymnasium's Pendulum-v1.
 
 Both runs use the PPO settings and the number of env copies of the shipped single-mover config
-(``agents/configs/ppo_single_v2.yaml`` unless ``--config``), one torch thread, no callbacks, and
+(``agents/configs/ppo_single_v2_residual.yaml`` unless ``--config``), one torch thread, no callbacks, and
 are measured in the same process one after the other, so the ratio compares the env's cost on the
 same machine state (goal of issue 10: ours >= 0.7x Pendulum). Ours goes through the
 :class:`~cv2x_marl.rl.vec_env.AgentsVecEnv` that ``cv2x-marl train`` uses (one-mover fast path);
@@ -30,25 +30,9 @@ from cv2x_marl.io import write_json  # noqa: E402
 
 
 def ppo_steps_per_s(vec: Any, cfg: Any, timesteps: int, seed: int) -> float:
-    from stable_baselines3 import PPO
+    from cv2x_marl.rl.train import make_ppo
 
-    p = cfg.ppo
-    model = PPO(
-        "MlpPolicy",
-        vec,
-        learning_rate=p.learning_rate,
-        n_steps=p.n_steps,
-        batch_size=p.batch_size,
-        n_epochs=p.n_epochs,
-        gamma=p.gamma,
-        gae_lambda=p.gae_lambda,
-        clip_range=p.clip_range,
-        ent_coef=p.ent_coef,
-        policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
-        seed=seed,
-        device="cpu",
-        verbose=0,
-    )
+    model = make_ppo(vec, cfg.ppo, seed)
     t0 = time.perf_counter()
     model.learn(timesteps)
     return model.num_timesteps / (time.perf_counter() - t0)
@@ -74,7 +58,7 @@ def main() -> None:
     from cv2x_marl.rl.train import make_vec_env as make_ours
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--config", default="agents/configs/ppo_single_v2.yaml")
+    ap.add_argument("--config", default="agents/configs/ppo_single_v2_residual.yaml")
     ap.add_argument("--env", default=None, help="override the config's env id")
     ap.add_argument("--timesteps", type=int, default=32_768)
     ap.add_argument("--repeats", type=int, default=2)

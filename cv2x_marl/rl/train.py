@@ -116,6 +116,31 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
     return cfg
 
 
+def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = None) -> Any:
+    """A fresh SB3 PPO (MLP policy, CPU) with the hyperparameters of ``p`` on the VecEnv ``vec``."""
+    from stable_baselines3 import PPO
+
+    return PPO(
+        "MlpPolicy",
+        vec,
+        learning_rate=p.learning_rate,
+        n_steps=p.n_steps,
+        batch_size=p.batch_size,
+        n_epochs=p.n_epochs,
+        gamma=p.gamma,
+        gae_lambda=p.gae_lambda,
+        clip_range=p.clip_range,
+        ent_coef=p.ent_coef,
+        vf_coef=p.vf_coef,
+        max_grad_norm=p.max_grad_norm,
+        policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
+        tensorboard_log=tensorboard_log,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
+
+
 def make_vec_env(cfg: TrainConfig) -> Any:
     """The agents x copies VecEnv of a training configuration."""
     from cv2x_marl.experiments.evaluate import make_eval_env
@@ -258,26 +283,7 @@ def train(
         model = PPO.load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
         model.set_random_seed(seed + model.num_timesteps)
     else:
-        p = cfg.ppo
-        model = PPO(
-            "MlpPolicy",
-            vec,
-            learning_rate=p.learning_rate,
-            n_steps=p.n_steps,
-            batch_size=p.batch_size,
-            n_epochs=p.n_epochs,
-            gamma=p.gamma,
-            gae_lambda=p.gae_lambda,
-            clip_range=p.clip_range,
-            ent_coef=p.ent_coef,
-            vf_coef=p.vf_coef,
-            max_grad_norm=p.max_grad_norm,
-            policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
-            tensorboard_log=str(run_dir / "tb"),
-            seed=seed,
-            device="cpu",
-            verbose=0,
-        )
+        model = make_ppo(vec, cfg.ppo, seed, str(run_dir / "tb"))
     start = model.num_timesteps
     remaining = max(0, timesteps - start)
     t0 = time.perf_counter()

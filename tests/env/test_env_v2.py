@@ -163,6 +163,7 @@ def test_replanning_uses_where_everyone_is_and_keeps_the_fast_path_exact() -> No
     full = MobilityEnv(movers=[0], max_cycles=12, replan_every=4, **V2_DEFAULTS, **FAST)
     of, _ = fast.reset(seed=3)
     og, _ = full.reset(seed=3)
+    assert np.array_equal(of, og["vehicle_0"])
     zero = np.zeros(2, np.float32)
     for _ in range(12):
         act = rng.uniform(-1, 1, 2).astype(np.float32)
