@@ -1,8 +1,11 @@
 """cv2x_marl: controlled mobility in C-V2X sidelink Mode 4 networks.
 
 Importing the package registers ``cv2x/Mobility-v0``, ``-v1``, ``-v2`` with PettingZoo and
-``cv2x/SingleMover-v0``, ``-v1``, ``-v2`` with Gymnasium when those (the ``train`` extra) are
-installed; the simulator itself (``cv2x_marl.sim``) never imports them.
+``cv2x/SingleMover-v0``, ``-v1``, ``-v2`` with Gymnasium (both are base dependencies; the simulator
+itself, ``cv2x_marl.sim``, never imports them). Entry points are import strings, so a fresh process
+(a Ray worker, a subprocess) resolves the Gymnasium ids with ``gymnasium.make("cv2x_marl:cv2x/
+SingleMover-v2")``, which imports the package first; PettingZoo has no such syntax: frameworks take
+the factories ``cv2x_marl.env.parallel_env`` / ``parallel_env_v1`` / ``parallel_env_v2`` instead.
 """
 
 __version__ = "0.1.0"
@@ -12,7 +15,7 @@ def _register_envs() -> None:
     try:
         import gymnasium
         import pettingzoo
-    except ImportError:  # the train extra is not installed: nothing to register
+    except ImportError:  # pragma: no cover - base dependencies; a broken install registers nothing
         return
     for version in ("v0", "v1", "v2"):
         env_id = f"cv2x/Mobility-{version}"

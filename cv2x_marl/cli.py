@@ -19,6 +19,7 @@ from cv2x_marl.config import (
     to_dict,
 )
 from cv2x_marl.experiments.dataset import DatasetError
+from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
@@ -374,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"cv2x-marl: configuration error: {exc}", file=sys.stderr)
         return 2
-    except (DatasetError, FitError, ModelError, TrainError, ValueError) as exc:
+    except (DatasetError, FitError, ModelError, TrainError, ValueError, MissingExtraError) as exc:
         print(f"cv2x-marl: error: {exc}", file=sys.stderr)
         return 2
 

@@ -89,7 +89,9 @@ class PpoPolicy:
             path = Path(path)
             if not path.exists():
                 raise ValueError(f"PPO model file {path} does not exist")
-            from stable_baselines3 import PPO
+            from cv2x_marl.extras import require
+
+            PPO = require("stable_baselines3", f"loading the PPO model {path}").PPO
 
             try:
                 self.model = PPO.load(str(path), device="cpu")

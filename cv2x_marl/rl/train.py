@@ -256,8 +256,10 @@ def train(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train (or resume) a shared PPO policy; write the run folder; return the training record."""
-    import torch
-    from stable_baselines3 import PPO
+    from cv2x_marl.extras import require
+
+    torch = require("torch", "cv2x-marl train")
+    PPO = require("stable_baselines3", "cv2x-marl train").PPO
 
     if timesteps < 1:
         raise TrainError(f"--timesteps must be >= 1, got {timesteps}")

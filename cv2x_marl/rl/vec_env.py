@@ -21,7 +21,13 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+try:
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
+except ImportError as _exc:  # the train extra is not installed
+    from cv2x_marl.extras import missing_extra
+
+    raise missing_extra("stable_baselines3", "the SB3 adapter (cv2x_marl.rl)", _exc) from _exc
 
 from cv2x_marl.env.mobility_env import MobilityEnv
 
