@@ -19,8 +19,8 @@ run: install
 	$(BIN)/cv2x-marl reproduce --quick --out results
 
 lint: install
-	$(BIN)/ruff check cv2x_marl tests benchmarks
-	$(BIN)/ruff format --check cv2x_marl tests benchmarks
+	$(BIN)/ruff check cv2x_marl tests benchmarks examples
+	$(BIN)/ruff format --check cv2x_marl tests benchmarks examples
 	$(BIN)/mypy cv2x_marl
 
 test: lint
@@ -31,6 +31,7 @@ bench: install
 	$(BIN)/python benchmarks/bench_regression.py
 	$(BIN)/python benchmarks/bench_gbmu.py
 	$(BIN)/python benchmarks/bench_env.py
+	$(BIN)/python benchmarks/bench_train.py
 
 docs: install
 	$(BIN)/cv2x-marl config --markdown > docs/config.md

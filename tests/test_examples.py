@@ -1,0 +1,31 @@
+"""Every script in examples/ runs in its quick mode and prints what it promises."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.parametrize(
+    ("script", "expect"),
+    [
+        ("env_quickstart.py", ["SingleMover-v2, one episode", "share of the optimum 100%"]),
+        ("sb3_ppo.py", ["PPO (256 steps)", "gbmu", "sensing"]),
+    ],
+)
+def test_example_quick_mode(script: str, expect: list[str]) -> None:
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / script), "--quick"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for text in expect:
+        assert text in proc.stdout, proc.stdout
