@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +19,7 @@ from cv2x_marl.config import (
 )
 from cv2x_marl.experiments.dataset import DatasetError
 from cv2x_marl.extras import MissingExtraError
+from cv2x_marl.io import dumps_json
 from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
@@ -35,8 +35,7 @@ EVAL_ENV_IDS = (
 
 
 def _print_json(data: object) -> None:
-    json.dump(data, sys.stdout, indent=2)
-    sys.stdout.write("\n")
+    sys.stdout.write(dumps_json(data) + "\n")
 
 
 def _scenario(args: argparse.Namespace) -> ScenarioConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from collections.abc import Callable
@@ -29,7 +30,26 @@ def atomic_write(path: str | Path, write: Callable[[Path], object]) -> Path:
     return path
 
 
+def strict(data: Any) -> Any:
+    """``data`` with every NaN or infinite float (numpy ones too) replaced by None and numpy scalars
+    and arrays turned into Python values, so it serialises as strict JSON (RFC 8259 has no NaN)."""
+    if isinstance(data, dict):
+        return {k: strict(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [strict(v) for v in data]
+    if hasattr(data, "tolist") and not isinstance(data, str | bytes):  # numpy scalar or array
+        return strict(data.tolist())
+    if isinstance(data, float) and not math.isfinite(data):
+        return None
+    return data
+
+
+def dumps_json(data: Any) -> str:
+    """Indented strict JSON of ``data`` (:func:`strict`: NaN and infinities as null)."""
+    return json.dumps(strict(data), indent=2, allow_nan=False)
+
+
 def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON, atomically."""
-    text = json.dumps(data, indent=2, allow_nan=True) + "\n"
+    """Write ``data`` as indented strict JSON (NaN and infinities as null), atomically."""
+    text = dumps_json(data) + "\n"
     return atomic_write(path, lambda p: p.write_text(text))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -50,6 +51,53 @@ class PpoConfig:
     #: initial log standard deviation of the Gaussian actions (SB3's default 0: std 1)
     log_std_init: float = 0.0
 
+    def __post_init__(self) -> None:
+        """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
+        reals = {
+            "learning_rate": (lambda v: v > 0, "a number > 0"),
+            "gamma": (lambda v: 0 < v <= 1, "a number in (0, 1]"),
+            "gae_lambda": (lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+            "clip_range": (lambda v: v > 0, "a number > 0"),
+            "ent_coef": (lambda v: v >= 0, "a number >= 0"),
+            "vf_coef": (lambda v: v >= 0, "a number >= 0"),
+            "max_grad_norm": (lambda v: v > 0, "a number > 0"),
+            "log_std_init": (lambda v: True, "a finite number"),
+        }
+        for name, (ok, allowed) in reals.items():
+            value = _number(getattr(self, name))
+            if value is None or not math.isfinite(value) or not ok(value):
+                raise TrainError(f"ppo.{name} must be {allowed}, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, value)
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            _check_count(f"ppo.{name}", getattr(self, name))
+        arch = self.net_arch
+        if not isinstance(arch, tuple | list) or not arch or not all(_is_int(a) and a >= 1 for a in arch):
+            raise TrainError(f"ppo.net_arch must be a non-empty list of integers >= 1, got {arch!r}")
+        object.__setattr__(self, "net_arch", tuple(int(a) for a in arch))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _number(value: Any) -> float | None:
+    """``value`` as a float if it is a real number or a numeric string, else None (bools are not numbers)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float | np.integer | np.floating):
+        return float(value)
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return None
+    return None
+
+
+def _check_count(name: str, value: Any) -> None:
+    if not _is_int(value) or value < 1:
+        raise TrainError(f"{name} must be an integer >= 1, got {value!r}")
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -70,8 +118,11 @@ class TrainConfig:
         if self.env_id not in ENV_IDS:
             raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
         for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
-            if getattr(self, name) < 1:
-                raise TrainError(f"train.{name} must be >= 1, got {getattr(self, name)}")
+            _check_count(f"train.{name}", getattr(self, name))
+        if not _is_int(self.eval_seed) or self.eval_seed < 0:
+            raise TrainError(f"train.eval_seed must be an integer >= 0, got {self.eval_seed!r}")
+        if not isinstance(self.env, dict):
+            raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -99,15 +150,21 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
     bad = sorted(set(data) - known)
     if bad:
         raise TrainError(f"unknown training config key(s) {bad}; keys: {', '.join(sorted(known))}")
-    ppo_data = dict(data.pop("ppo", {}) or {})
+    ppo_raw = data.pop("ppo", {}) or {}
+    if not isinstance(ppo_raw, dict):
+        raise TrainError(f"train.ppo must be a mapping of PPO settings, got {ppo_raw!r}")
+    ppo_data = dict(ppo_raw)
     ppo_known = {f.name for f in dataclasses.fields(PpoConfig)}
     bad = sorted(set(ppo_data) - ppo_known)
     if bad:
         raise TrainError(f"unknown ppo key(s) {bad}; keys: {', '.join(sorted(ppo_known))}")
-    if "net_arch" in ppo_data:
+    if "net_arch" in ppo_data and isinstance(ppo_data["net_arch"], list | tuple):
         ppo_data["net_arch"] = tuple(ppo_data["net_arch"])
     defaults = TrainConfig()
-    env = {**defaults.env, **(data.pop("env", {}) or {})}
+    env_data = data.pop("env", {}) or {}
+    if not isinstance(env_data, dict):
+        raise TrainError(f"train.env must be a mapping of env arguments, got {env_data!r}")
+    env = {**defaults.env, **env_data}
     cfg = TrainConfig(**{**data, "env": env, "ppo": PpoConfig(**ppo_data)})
     if env_id is not None:
         cfg = dataclasses.replace(cfg, env_id=env_id)

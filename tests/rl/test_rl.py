@@ -167,3 +167,34 @@ def test_bad_model_files_and_configs(tmp_path: Path) -> None:
     f.write_text("copiez: 3\n")
     with pytest.raises(TrainError, match="copiez"):
         load_train_config(f)
+
+
+@pytest.mark.parametrize(
+    ("text", "name"),
+    [
+        ("ppo:\n  gamma: 5\n", "ppo.gamma"),
+        ("ppo:\n  n_steps: 0\n", "ppo.n_steps"),
+        ("ppo:\n  batch_size: 1.5\n", "ppo.batch_size"),
+        ("ppo:\n  learning_rate: .nan\n", "ppo.learning_rate"),
+        ("ppo:\n  learning_rate: fast\n", "ppo.learning_rate"),
+        ("ppo:\n  net_arch: [64, 0]\n", "ppo.net_arch"),
+        ("ppo:\n  clip_range: true\n", "ppo.clip_range"),
+        ("checkpoint_every: 1.5\n", "train.checkpoint_every"),
+        ("eval_seed: -1\n", "train.eval_seed"),
+        ("env: 3\n", "train.env"),
+        ("ppo: [1]\n", "train.ppo"),
+    ],
+)
+def test_training_config_values_are_type_and_range_checked(tmp_path: Path, text: str, name: str) -> None:
+    f = tmp_path / "c.yaml"
+    f.write_text(text)
+    with pytest.raises(TrainError, match=name.replace(".", r"\.")):
+        load_train_config(f)
+
+
+def test_scientific_notation_is_a_number_in_training_configs(tmp_path: Path) -> None:
+    f = tmp_path / "c.yaml"
+    f.write_text("ppo:\n  learning_rate: 3e-4\n  ent_coef: 1e-3\n")  # strings under YAML 1.1
+    cfg = load_train_config(f)
+    assert cfg.ppo.learning_rate == 3e-4 and cfg.ppo.ent_coef == 1e-3
+    assert isinstance(cfg.ppo.learning_rate, float)
