@@ -228,6 +228,20 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_baselines(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.baselines import run_baselines
+
+    result = run_baselines(args.dir, args.episodes, args.seed, args.env, progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        for r in result["rows"]:
+            share = "" if r["share_of_optimum"] is None else f", {r['share_of_optimum']:.0%} of the optimum"
+            print(f"{r['baseline']:10s} {r['env']}: utility gain {r['mean_utility_gain']:+.1%}{share}")
+        print(f"wrote {args.dir / 'results.json'} and {args.dir / 'results.md'}")
+    return 0
+
+
 def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
@@ -313,7 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--policy",
         default="gbmu",
-        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH",
+        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH | baselines/NAME.yaml",
     )
     p.add_argument(
         "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"
@@ -357,6 +371,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_reproduce)
+
+    p = sub.add_parser("baselines", help="every baseline file of a folder on the same held-out episodes")
+    p.add_argument("--dir", type=Path, default=Path("baselines"), help="folder of baseline files (*.yaml)")
+    p.add_argument("--episodes", type=int, default=144)
+    p.add_argument("--seed", type=int, default=2026)
+    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS), help="default: each file's env_id")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_baselines)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)

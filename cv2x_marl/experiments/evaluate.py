@@ -172,17 +172,27 @@ def evaluate(
     """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns.
 
     Args:
-        env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on, else
-            ``cv2x/SingleMover-v2``.
+        env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on or a baseline
+            file names, else ``cv2x/SingleMover-v2``.
+        policy_spec: a policy name (:func:`make_policy`), ``ppo:PATH``, a baseline file
+            (``baselines/NAME.yaml``, :mod:`cv2x_marl.experiments.baselines`: its policy, model,
+            delta, env id and env options; ``env_kwargs`` override the latter) or a policy object.
         vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
             (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
             utility gain over the optimum's on the same episodes.
     """
     from tqdm import tqdm
 
+    from cv2x_marl.experiments.baselines import is_baseline_file, load_baseline
+
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
     env_kwargs = dict(env_kwargs or {})
+    if isinstance(policy_spec, str) and is_baseline_file(policy_spec):  # baselines/NAME.yaml
+        spec = load_baseline(policy_spec)
+        env_id = env_id or spec.env_id
+        env_kwargs = {**spec.env, **env_kwargs}
+        policy_spec, model_path, delta = spec.policy, spec.model, spec.delta
     if isinstance(policy_spec, str) and policy_spec.startswith("ppo:"):
         trained_id, trained_env = trained_env_options(Path(policy_spec[4:]))
         env_id = env_id or trained_id
