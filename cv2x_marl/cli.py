@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from cv2x_marl.config import (
     PRESETS,
@@ -32,6 +34,42 @@ EVAL_ENV_IDS = (
     "cv2x/SingleMover-v0",
     "cv2x/Mobility-v0",
 )
+
+
+def _number_type(
+    kind: type, low: float, low_open: bool, high: float | None = None, high_open: bool = True
+) -> Callable[[str], Any]:
+    """An argparse ``type`` that accepts finite ``kind`` values in the range and names the rule otherwise."""
+    lo = f"{'>' if low_open else '>='} {low:g}"
+    rule = f"{'an integer' if kind is int else 'a finite number'} {lo}"
+    if high is not None:
+        rule += f" and {'<' if high_open else '<='} {high:g}"
+
+    def parse(text: str) -> float | int:
+        try:
+            value = kind(text)
+        except ValueError:
+            try:  # an integer written in scientific notation (--timesteps 1e5)
+                as_float = float(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}") from None
+            if kind is not int or not as_float.is_integer():
+                raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}") from None
+            value = int(as_float)
+        ok = math.isfinite(value) and (value > low if low_open else value >= low)
+        if high is not None:
+            ok = ok and (value < high if high_open else value <= high)
+        if not ok:
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}")
+        return value
+
+    return parse
+
+
+POSITIVE_FLOAT = _number_type(float, 0.0, True)
+FRACTION = _number_type(float, 0.0, True, 1.0, True)
+COUNT = _number_type(int, 1, False)
+SEED = _number_type(int, 0, False)
 
 
 def _print_json(data: object) -> None:
@@ -257,8 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="run the stage-1 network simulator")
     _add_scenario_args(p)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--subframes", type=int, help="subframes to simulate (default: sim.n_subframes)")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--subframes", type=COUNT, help="subframes to simulate (default: sim.n_subframes)")
     p.add_argument("--out", type=Path, help="output folder for links.parquet, summary.json, prr_vs_distance.png")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -266,12 +304,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("dataset", help="stage-1 dataset: K independent runs of link samples")
     _add_scenario_args(p)
-    p.add_argument("--runs", type=int, default=10, help="independent runs (seeds derived from --seed)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--subframes", type=int, help="subframes per run (default: sim.n_subframes)")
+    p.add_argument("--runs", type=COUNT, default=10, help="independent runs (seeds derived from --seed)")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--subframes", type=COUNT, help="subframes per run (default: sim.n_subframes)")
     p.add_argument(
         "--aggregate-window-ms",
-        type=int,
+        type=SEED,
         default=0,
         help="aggregate per (run, link, window, NSV) into an empirical reception rate (0: per transmission)",
     )
@@ -285,10 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="model file to write (JSON)")
     p.add_argument("--model", default="linear", choices=["linear", "logistic"], help="model family")
     p.add_argument("--target", default="p_success", choices=["p_success", "outcome", "rate"])
-    p.add_argument("--nsv-cap", type=int, default=6, help="NSV values above are pooled into the cap")
-    p.add_argument("--test-fraction", type=float, default=0.2, help="share of runs held out")
-    p.add_argument("--min-samples", type=int, default=30, help="below this an NSV borrows a neighbour's fit")
-    p.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    p.add_argument("--nsv-cap", type=COUNT, default=6, help="NSV values above are pooled into the cap")
+    p.add_argument("--test-fraction", type=FRACTION, default=0.2, help="share of runs held out")
+    p.add_argument("--min-samples", type=COUNT, default=30, help="below this an NSV borrows a neighbour's fit")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the held-out split")
     p.add_argument("--compare", action="store_true", help="also fit the other family and compare on held-out data")
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--json", action="store_true", help="print per-NSV coefficients and statistics as JSON")
@@ -297,11 +335,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("gbmu", help="GBMU mobility studies (Fig. 5-10) with greedy and oracle references")
     _add_scenario_args(p)
     p.add_argument("--case", default="realizations", choices=["seven-node", "snapshot", "realizations"])
-    p.add_argument("--realizations", type=int, default=144, help="snapshots in the realizations case")
-    p.add_argument("--iterations", type=int, default=10_000, help="iteration cap")
-    p.add_argument("--step", type=float, default=1.0, help="step size delta")
-    p.add_argument("--th-pos", type=float, default=1e-4, help="stop when a move is shorter than this (m)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--realizations", type=COUNT, default=144, help="snapshots in the realizations case")
+    p.add_argument("--iterations", type=COUNT, default=10_000, help="iteration cap")
+    p.add_argument("--step", type=POSITIVE_FLOAT, default=1.0, help="step size delta")
+    p.add_argument("--th-pos", type=POSITIVE_FLOAT, default=1e-4, help="stop when a move is shorter than this (m)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument(
         "--model", type=Path, default=Path("paper-table2"), help="fitted model JSON, or paper-table2 (default)"
     )
@@ -332,20 +370,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"
     )
-    p.add_argument("--episodes", type=int, default=144)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=COUNT, default=144)
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--preset", default="paper", choices=sorted(PRESETS))
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
-    p.add_argument("--max-cycles", type=int, default=100, help="steps per episode")
-    p.add_argument("--max-step", type=float, default=5.0, help="offset of a full action (m)")
+    p.add_argument("--max-cycles", type=COUNT, default=100, help="steps per episode")
+    p.add_argument("--max-step", type=POSITIVE_FLOAT, default=5.0, help="offset of a full action (m)")
     p.add_argument(
         "--replan-every",
-        type=int,
+        type=COUNT,
         default=None,
         help="-v2 envs: recompute the sensing plan every N steps (default: a ppo:PATH model's setting, else once)",
     )
     p.add_argument("--model", type=Path, default=Path("paper-table2"), help="two-distance model for gbmu/greedy")
-    p.add_argument("--delta", type=float, default=100.0, help="GBMU/greedy/oracle step size per env step")
+    p.add_argument("--delta", type=POSITIVE_FLOAT, default=100.0, help="GBMU/greedy/oracle step size per env step")
     p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
@@ -354,9 +392,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
     p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS))
     p.add_argument("--algo", default="ppo")
-    p.add_argument("--timesteps", type=int, default=200_000, help="total agent-steps")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--copies", type=int, default=None, help="env copies (each mover of each copy is a sub-env)")
+    p.add_argument("--timesteps", type=COUNT, default=200_000, help="total agent-steps")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--copies", type=COUNT, default=None, help="env copies (each mover of each copy is a sub-env)")
     p.add_argument("--config", type=Path, help="YAML/JSON: env_id, copies, env, ppo, checkpoint_every, eval_*")
     p.add_argument("--out", type=Path, required=True, help="run folder")
     p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
@@ -367,15 +405,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="dataset, fit, GBMU study, movers vs baselines, REPORT.md")
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--quick", action="store_true", help="smaller settings: about a minute on 2 cores")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_reproduce)
 
     p = sub.add_parser("baselines", help="every baseline file of a folder on the same held-out episodes")
     p.add_argument("--dir", type=Path, default=Path("baselines"), help="folder of baseline files (*.yaml)")
-    p.add_argument("--episodes", type=int, default=144)
-    p.add_argument("--seed", type=int, default=2026)
+    p.add_argument("--episodes", type=COUNT, default=144)
+    p.add_argument("--seed", type=SEED, default=2026)
     p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS), help="default: each file's env_id")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")

@@ -51,3 +51,32 @@ def test_bad_key_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert rc == 2
     err = capsys.readouterr().err
     assert "sps.keep_prob" in err and "keep_probability" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["gbmu", "--step", "nan", "--out", "x"],
+        ["gbmu", "--step", "inf", "--out", "x"],
+        ["evaluate", "--delta", "-100"],
+        ["evaluate", "--episodes", "0"],
+        ["evaluate", "--max-step", "0"],
+        ["train", "--timesteps", "15.5", "--out", "x"],
+        ["dataset", "--runs", "2.5", "--out", "x"],
+        ["fit", "--test-fraction", "1", "--data", "a", "--out", "b"],
+        ["simulate", "--seed", "-1"],
+    ],
+)
+def test_bad_numbers_are_refused_by_name(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    flag = next(a for a in argv if a.startswith("--") and a != "--out")
+    assert f"argument {flag}: must be" in err
+
+
+def test_counts_in_scientific_notation() -> None:
+    from cv2x_marl.cli import COUNT
+
+    assert COUNT("1e5") == 100_000 and COUNT("12") == 12

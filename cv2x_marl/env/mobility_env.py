@@ -42,6 +42,20 @@ def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
         raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
 
 
+def _is_int(value: Any) -> bool:
+    """An integer (numpy ones too), not a bool."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    """A finite real number (numpy ones too), not a bool."""
+    return (
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool)
+        and bool(np.isfinite(value))
+    )
+
+
 class MobilityEnv(ParallelEnv):
     """Controlled mobility in a C-V2X Mode 4 network (PettingZoo ParallelEnv).
 
@@ -118,12 +132,19 @@ class MobilityEnv(ParallelEnv):
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
         _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
-        _check("max_cycles", isinstance(max_cycles, int) and max_cycles >= 1, "integer >= 1", max_cycles)
-        _check("max_step_m", max_step_m > 0 and np.isfinite(max_step_m), "finite number > 0", max_step_m)
-        _check("local_ratio", 0.0 <= local_ratio <= 1.0, "[0, 1]", local_ratio)
-        _check("p_min", 0.0 < p_min < 1.0, "(0, 1)", p_min)
-        _check("scale_m", scale_m > 0, "number > 0", scale_m)
-        _check("max_drift_m", max_drift_m is None or max_drift_m > 0, "null or number > 0", max_drift_m)
+        _check("max_cycles", _is_int(max_cycles) and max_cycles >= 1, "integer >= 1", max_cycles)
+        _check("max_step_m", _is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
+        _check("local_ratio", _is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
+        _check("p_min", _is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
+        _check("scale_m", _is_real(scale_m) and scale_m > 0, "finite number > 0", scale_m)
+        _check(
+            "max_drift_m",
+            max_drift_m is None or (_is_real(max_drift_m) and max_drift_m > 0),
+            "null or finite number > 0",
+            max_drift_m,
+        )
+        _check("normalise_reward", isinstance(normalise_reward, bool | np.bool_), "bool", normalise_reward)
+        _check("roi", isinstance(roi, bool | np.bool_), "bool", roi)
         _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
         _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
         _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
@@ -151,10 +172,22 @@ class MobilityEnv(ParallelEnv):
         self.n = cfg.n_vehicles
         if n_neighbours is None:
             n_neighbours = self.n - 1
-        _check("n_neighbours", 1 <= n_neighbours <= self.n - 1, f"1 .. {self.n - 1}", n_neighbours)
+        _check(
+            "n_neighbours",
+            _is_int(n_neighbours) and 1 <= n_neighbours <= self.n - 1,
+            f"1 .. {self.n - 1}",
+            n_neighbours,
+        )
         if movers is not None:
-            bad = [m for m in movers if not 0 <= int(m) < self.n]
-            _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", list(movers))
+            _check(
+                "movers", not isinstance(movers, str | bytes), f"a list of vehicle indices 0 .. {self.n - 1}", movers
+            )
+            try:
+                movers = list(movers)
+            except TypeError:
+                _check("movers", False, f"a list of vehicle indices 0 .. {self.n - 1}", movers)
+            bad = [m for m in movers if not (_is_int(m) and 0 <= m < self.n)]
+            _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", movers)
         self.mode = mode
         self.max_cycles = max_cycles
         self.max_step_m = float(max_step_m)
@@ -581,6 +614,8 @@ class MobilityEnv(ParallelEnv):
     # ----------------------------------------------------------- state / draw
     def state(self) -> NDArray[np.float32]:
         """Global state for centralised critics: positions, drifts, slot and subchannel of every vehicle."""
+        if not hasattr(self, "positions_m"):
+            raise RuntimeError("state() called before reset(): call reset() first")
         region = self.layout.region_m
         slot = self.resource // self.config.sps.n_subchannels
         sub = self.resource % self.config.sps.n_subchannels
@@ -597,6 +632,8 @@ class MobilityEnv(ParallelEnv):
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None:
             return None
+        if not hasattr(self, "positions_m"):
+            raise RuntimeError("render() called before reset(): call reset() first")
         from cv2x_marl.env.render import draw
 
         img = draw(self)
