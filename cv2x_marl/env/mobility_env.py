@@ -150,6 +150,13 @@ class MobilityEnv(ParallelEnv):
         _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
         _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1 | 2", observation)
         _check(
+            "observation",
+            observation < 2 or (cfg.channel.pathloss == "winner_b1" and truth_los != "geometry"),
+            "0 | 1 when channel.pathloss is not winner_b1 or truth_los is geometry (the v2 sensing estimate "
+            "runs on the compiled WINNER+ B1 kernels)",
+            observation,
+        )
+        _check(
             "privileged",
             isinstance(privileged, bool) and (observation >= 1 or not privileged),
             "bool (observation >= 1)",

@@ -36,6 +36,8 @@ def test_v2_ids_and_checkers() -> None:
     sb3_check_env(g.unwrapped, warn=True)
     with pytest.raises(ValueError, match=r"observation.*0 \| 1 \| 2"):
         MobilityEnv(observation=3)
+    with pytest.raises(ValueError, match=r"invalid env argument observation=2.*truth_los is geometry"):
+        MobilityEnv(observation=2, truth_los="geometry")
 
 
 def test_sensed_row_is_the_truth_without_the_shadowing_between_others() -> None:
