@@ -449,8 +449,12 @@ class MoverRow:
         return out
 
     def utility(self, candidates_m: FloatArray, p_min: float, chunk: int = 65_536) -> FloatArray:
-        """[M] eq. 12 utility of the mover at each candidate [M, 2] (m), in chunks of ``chunk`` rows."""
+        """[M] eq. 12 utility of the mover at each candidate [M, 2] (m), in chunks of ``chunk`` rows
+        (compiled: :func:`cv2x_marl.sim.kernels.mover_row_utility`, bit-identical to the utility of
+        :meth:`success`)."""
         cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
+        if self.links.compiled:
+            return kernels.mover_row_utility(np.ascontiguousarray(cand), *self._args, float(p_min))
         out = np.empty(cand.shape[0])
         for lo in range(0, cand.shape[0], chunk):
             out[lo : lo + chunk] = kernels.row_utility(self.success(cand[lo : lo + chunk]), self.target_row, p_min)

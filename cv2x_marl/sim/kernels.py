@@ -343,6 +343,67 @@ def mover_row_success(
 
 
 @njit(cache=True)
+def mover_row_utility(
+    candidates_m: FloatArray,
+    positions_m: FloatArray,
+    mover: int,
+    period_m: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    interference_mw: FloatArray,
+    noise_mw: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    target_row: NDArray[np.bool_],
+    p_min: float,
+) -> FloatArray:
+    """[M] eq. 12 utility of ``mover`` at each candidate: :func:`row_utility` of
+    :func:`mover_row_success`, fused (no [M, N] table; the noise-plus-interference level of each
+    receiver computed once). The same operations in the same order, so bit-identical (tested); the
+    global searches of the optimum and the sensing plan run on it.
+    """
+    m_count = candidates_m.shape[0]
+    n = positions_m.shape[0]
+    level_db = np.empty(n)
+    for j in range(n):
+        level_db[j] = 10.0 * math.log10(interference_mw[j] + noise_mw)
+    out = np.zeros(m_count)
+    for m in range(m_count):
+        u = 0.0
+        for j in range(n):
+            if not target_row[j]:
+                continue
+            if mover < j:
+                dx = positions_m[j, 0] - candidates_m[m, 0]
+                dy = positions_m[j, 1] - candidates_m[m, 1]
+            else:
+                dx = candidates_m[m, 0] - positions_m[j, 0]
+                dy = candidates_m[m, 1] - positions_m[j, 1]
+            if period_m[0] < np.inf:
+                dx -= period_m[0] * np.rint(dx / period_m[0])
+            if period_m[1] < np.inf:
+                dy -= period_m[1] * np.rint(dy / period_m[1])
+            x = 0.0
+            if dx * dx + dy * dy <= range2_m2:
+                pl = winner_b1_pair_db(dx, dy, los_row[j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+                s_dbm = gain_row_db[j] - pl
+                if not (s_dbm < sensitivity_dbm or s_dbm == -np.inf):
+                    sinr_db = s_dbm - level_db[j]
+                    if model == MODEL_PER_TABLE:
+                        x = _per_success(sinr_db, per_sinr_db, per)
+                    else:
+                        x = 1.0 if sinr_db >= threshold_db else 0.0
+            u += math.log(max(x, p_min))
+        out[m] = u
+    return out
+
+
+@njit(cache=True)
 def row_utility(p: FloatArray, target_row: NDArray[np.bool_], p_min: float) -> FloatArray:
     """[M] eq. 12 utility ``sum_j ln max(P_mj, p_min)`` over the targets of each row of ``p`` [M, N]
     (the additions of :func:`link_summaries`, in its order)."""

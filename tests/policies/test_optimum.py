@@ -90,3 +90,16 @@ def test_planner_is_not_privileged_and_moves_to_the_model_optimum() -> None:
     r = evaluate("cv2x/SingleMover-v1", "planner", 4, 3, env_kwargs=kw, progress=False, vs_optimum=True)
     assert r["beats_optimum"] == 0
     assert -1.0 < r["mean_utility_gain"] <= r["optimum_utility_gain"] + 1e-9
+
+
+def test_fused_utility_kernel_is_bit_identical() -> None:
+    from cv2x_marl.sim import kernels
+
+    env = MobilityEnv(**FAST)
+    env.reset(seed=4)
+    rng = np.random.default_rng(2)
+    for i in (0, 11):
+        for row in (env.links.mover_row(i, env.positions_m), env.links.sensed_row(i, env.positions_m)):
+            cands = env.positions_m[i] + rng.uniform(-900, 900, size=(300, 2))  # near and beyond range
+            want = kernels.row_utility(row.success(cands), row.target_row, env.p_min)
+            assert np.array_equal(row.utility(cands, env.p_min), want)
