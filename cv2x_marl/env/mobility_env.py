@@ -401,14 +401,14 @@ class MobilityEnv(ParallelEnv):
         self._move_geometry(i)
         reward = float(self._step_rewards()[i])
         if self.layout.version >= 1:
-            self._update_v1_state()
+            self._update_v1_row(i)
             self._maybe_replan()
         done = self.t >= self.max_cycles
         rows = np.array([i], dtype=np.int64)
         obs = self._build(rows)
         if self.layout.version >= 1:
             lo, clip = self.layout.own_v1_offset, self.layout.obs_clip
-            obs[:, lo : lo + OWN_V1] = np.clip(self._own_v1(rows), -clip, clip)
+            obs[0, lo : lo + OWN_V1] = np.clip(self._own_v1_row(i), -clip, clip)
         vals = (self.u[i], self.u0[i], self.prr[i], self.prr0[i], self.jain[i], applied[0], applied[1], clipped)
         info = dict(zip(INFO_KEYS, (float(v) for v in vals), strict=True))
         if done:
@@ -565,6 +565,36 @@ class MobilityEnv(ParallelEnv):
         better = self._u_now > self._u_best
         self._u_best = np.where(better, self._u_now, self._u_best)
         self._best_m[better] = self.positions_m[better]
+
+    def _update_v1_row(self, i: int) -> None:
+        """:meth:`_update_v1_state` for vehicle ``i`` alone (the one-mover path: nobody else changed);
+        the same arithmetic, so the same values."""
+        u = self.u[i] if self.normalise_reward else self.u[i] / max(int(self.target[i].sum()), 1)
+        self._u_prev[i] = self._u_now[i]
+        self._u_now[i] = u
+        if self._u_now[i] > self._u_best[i]:
+            self._u_best[i] = self._u_now[i]
+            self._best_m[i] = self.positions_m[i]
+
+    def _own_v1_row(self, i: int) -> NDArray[np.float64]:
+        """[OWN_V1] :meth:`_own_v1` of vehicle ``i`` alone, with scalar arithmetic (the same values)."""
+        inv = 1.0 / self.layout.scale_m
+        x, y = self.positions_m[i]
+        reach = max(self.max_cycles - self.settle_steps - self.t, 0) * self.max_step_m
+        now, best, plan = self._u_now[i], self._best_m[i], self.plan_m[i]
+        return np.array(
+            [
+                now,
+                10.0 * (now - self._u_prev[i]),
+                now - self._u_start[i],
+                self._u_best[i] - now,
+                (best[0] - x) * inv,
+                (best[1] - y) * inv,
+                (plan[0] - x) * inv,
+                (plan[1] - y) * inv,
+                reach * inv,
+            ]
+        )
 
     def _own_v1(self, rows: NDArray[np.int64]) -> NDArray[np.float64]:
         """[A, OWN_V1] the own v1 entries of agents ``rows`` (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`)."""
