@@ -17,6 +17,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
+from cv2x_marl.checks import is_int, is_real
 from cv2x_marl.config import ScenarioConfig, apply_overrides
 from cv2x_marl.config import preset as load_preset
 from cv2x_marl.env.observation import OWN_V1, VERSIONS, ObservationLayout, build_observations, co_channel_table
@@ -40,20 +41,6 @@ INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m
 def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
     if not ok:
         raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
-
-
-def _is_int(value: Any) -> bool:
-    """An integer (numpy ones too), not a bool."""
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-
-def _is_real(value: Any) -> bool:
-    """A finite real number (numpy ones too), not a bool."""
-    return (
-        isinstance(value, int | float | np.integer | np.floating)
-        and not isinstance(value, bool)
-        and bool(np.isfinite(value))
-    )
 
 
 class MobilityEnv(ParallelEnv):
@@ -132,14 +119,14 @@ class MobilityEnv(ParallelEnv):
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
         _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
-        _check("max_cycles", _is_int(max_cycles) and max_cycles >= 1, "integer >= 1", max_cycles)
-        _check("max_step_m", _is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
-        _check("local_ratio", _is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
-        _check("p_min", _is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
-        _check("scale_m", _is_real(scale_m) and scale_m > 0, "finite number > 0", scale_m)
+        _check("max_cycles", is_int(max_cycles) and max_cycles >= 1, "integer >= 1", max_cycles)
+        _check("max_step_m", is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
+        _check("local_ratio", is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
+        _check("p_min", is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
+        _check("scale_m", is_real(scale_m) and scale_m > 0, "finite number > 0", scale_m)
         _check(
             "max_drift_m",
-            max_drift_m is None or (_is_real(max_drift_m) and max_drift_m > 0),
+            max_drift_m is None or (is_real(max_drift_m) and max_drift_m > 0),
             "null or finite number > 0",
             max_drift_m,
         )
@@ -171,7 +158,7 @@ class MobilityEnv(ParallelEnv):
         )
         _check(
             "settle_steps",
-            isinstance(settle_steps, int) and 0 <= settle_steps < max_cycles,
+            is_int(settle_steps) and 0 <= settle_steps < max_cycles,
             "integer in [0, max_cycles)",
             settle_steps,
         )
@@ -181,7 +168,7 @@ class MobilityEnv(ParallelEnv):
             n_neighbours = self.n - 1
         _check(
             "n_neighbours",
-            _is_int(n_neighbours) and 1 <= n_neighbours <= self.n - 1,
+            is_int(n_neighbours) and 1 <= n_neighbours <= self.n - 1,
             f"1 .. {self.n - 1}",
             n_neighbours,
         )
@@ -193,7 +180,7 @@ class MobilityEnv(ParallelEnv):
                 movers = list(movers)
             except TypeError:
                 _check("movers", False, f"a list of vehicle indices 0 .. {self.n - 1}", movers)
-            bad = [m for m in movers if not (_is_int(m) and 0 <= m < self.n)]
+            bad = [m for m in movers if not (is_int(m) and 0 <= m < self.n)]
             _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", movers)
         self.mode = mode
         self.max_cycles = max_cycles
@@ -223,8 +210,7 @@ class MobilityEnv(ParallelEnv):
         )
         _check(
             "replan_every",
-            replan_every is None
-            or (isinstance(replan_every, int) and not isinstance(replan_every, bool) and replan_every >= 1),
+            replan_every is None or (is_int(replan_every) and replan_every >= 1),
             "null or an integer >= 1 (observation 2)",
             replan_every,
         )
@@ -307,7 +293,7 @@ class MobilityEnv(ParallelEnv):
         act = self._decode(actions)
         clipped: NDArray[np.bool_] = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
         if self.action_mode == "plan_residual":
-            act = act + np.clip((self.plan_m - self.positions_m) / self.max_step_m, -1.0, 1.0)
+            act = act + self._toward_plan()
         offsets = np.minimum(np.maximum(act, -1.0), 1.0) * self._step_scale_m
         if self.t >= self.max_cycles - self.settle_steps:
             offsets = np.zeros_like(offsets)  # settle phase: vehicles stay where they are
@@ -380,7 +366,7 @@ class MobilityEnv(ParallelEnv):
             raise ValueError(f"action of {name} is not finite: {act.tolist()}")
         clipped = bool(((act < -1.0) | (act > 1.0)).any())
         if self.action_mode == "plan_residual":
-            act = act + np.clip((self.plan_m[i] - self.positions_m[i]) / self.max_step_m, -1.0, 1.0)
+            act = act + self._toward_plan()[i]
         offset = np.minimum(np.maximum(act, -1.0), 1.0) * self.max_step_m
         if self.t >= self.max_cycles - self.settle_steps:
             offset = np.zeros(2)
@@ -415,6 +401,10 @@ class MobilityEnv(ParallelEnv):
             self.agents = []
             self._live = set()
         return obs[0], reward, done, info
+
+    def _toward_plan(self) -> NDArray[np.float64]:
+        """[N, 2] the straight step towards each vehicle's plan as an action (``plan_residual``)."""
+        return np.clip((self.plan_m - self.positions_m) / self.max_step_m, -1.0, 1.0)
 
     def _move_geometry(self, i: int) -> None:
         """Update row and column ``i`` of the pair geometry after vehicle ``i`` moved."""

@@ -16,11 +16,11 @@ table is rendered from the JSON by :func:`render_table`, so a test can check it 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cv2x_marl.checks import is_real
 from cv2x_marl.io import atomic_write, write_json
 
 SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
@@ -77,7 +77,7 @@ def load_baseline(path: str | Path) -> Baseline:
     if policy not in SCRIPTED:
         raise ValueError(f"baseline file {path}: policy must be one of {', '.join(SCRIPTED)}, got {policy!r}")
     delta = data.get("delta", 100.0)
-    if isinstance(delta, bool) or not isinstance(delta, int | float) or not math.isfinite(delta) or delta <= 0:
+    if not is_real(delta) or delta <= 0:
         raise ValueError(f"baseline file {path}: delta must be a finite number > 0, got {delta!r}")
     env_id = data.get("env_id", "cv2x/SingleMover-v2")
     if env_id not in ENV_IDS:

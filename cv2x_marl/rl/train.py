@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from cv2x_marl.checks import as_real, is_int
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.rl.errors import TrainError
 
@@ -64,38 +64,20 @@ class PpoConfig:
             "log_std_init": (lambda v: True, "a finite number"),
         }
         for name, (ok, allowed) in reals.items():
-            value = _number(getattr(self, name))
-            if value is None or not math.isfinite(value) or not ok(value):
+            value = as_real(getattr(self, name))
+            if value is None or not ok(value):
                 raise TrainError(f"ppo.{name} must be {allowed}, got {getattr(self, name)!r}")
             object.__setattr__(self, name, value)
         for name in ("n_steps", "batch_size", "n_epochs"):
             _check_count(f"ppo.{name}", getattr(self, name))
         arch = self.net_arch
-        if not isinstance(arch, tuple | list) or not arch or not all(_is_int(a) and a >= 1 for a in arch):
+        if not isinstance(arch, tuple | list) or not arch or not all(is_int(a) and a >= 1 for a in arch):
             raise TrainError(f"ppo.net_arch must be a non-empty list of integers >= 1, got {arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(a) for a in arch))
 
 
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-
-def _number(value: Any) -> float | None:
-    """``value`` as a float if it is a real number or a numeric string, else None (bools are not numbers)."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, int | float | np.integer | np.floating):
-        return float(value)
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return None
-    return None
-
-
 def _check_count(name: str, value: Any) -> None:
-    if not _is_int(value) or value < 1:
+    if not is_int(value) or value < 1:
         raise TrainError(f"{name} must be an integer >= 1, got {value!r}")
 
 
@@ -119,7 +101,7 @@ class TrainConfig:
             raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
         for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
             _check_count(f"train.{name}", getattr(self, name))
-        if not _is_int(self.eval_seed) or self.eval_seed < 0:
+        if not is_int(self.eval_seed) or self.eval_seed < 0:
             raise TrainError(f"train.eval_seed must be an integer >= 0, got {self.eval_seed!r}")
         if not isinstance(self.env, dict):
             raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")

@@ -178,6 +178,25 @@ def _interference_mw(
 
 
 @njit(cache=True)
+def _success_at_level(
+    s_dbm: float,
+    level_db: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+) -> float:
+    """Expected success of one link from its mean signal (dBm) and noise-plus-interference level (dB)."""
+    if s_dbm < sensitivity_dbm or s_dbm == -np.inf:
+        return 0.0
+    sinr_db = s_dbm - level_db
+    if model == MODEL_PER_TABLE:
+        return _per_success(sinr_db, per_sinr_db, per)
+    return 1.0 if sinr_db >= threshold_db else 0.0
+
+
+@njit(cache=True)
 def _link_success(
     s_dbm: float,
     interference_mw: float,
@@ -189,12 +208,8 @@ def _link_success(
     sensitivity_dbm: float,
 ) -> float:
     """Expected success of one link from its mean signal (dBm) and interference (mW)."""
-    if s_dbm < sensitivity_dbm or s_dbm == -np.inf:
-        return 0.0
-    sinr_db = s_dbm - 10.0 * math.log10(interference_mw + noise_mw)
-    if model == MODEL_PER_TABLE:
-        return _per_success(sinr_db, per_sinr_db, per)
-    return 1.0 if sinr_db >= threshold_db else 0.0
+    level_db = 10.0 * math.log10(interference_mw + noise_mw)
+    return _success_at_level(s_dbm, level_db, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
 
 
 @njit(cache=True)
@@ -281,6 +296,47 @@ def mover_interference(
 
 
 @njit(cache=True)
+def _moved_signal_dbm(
+    cx: float,
+    cy: float,
+    positions_m: FloatArray,
+    mover: int,
+    j: int,
+    period_m: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+) -> float:
+    """Mean signal (dBm) at receiver ``j`` of ``mover`` placed at (cx, cy): the displacement as
+    :func:`snapshot_links` takes it (from the lower to the higher index, folded on the torus),
+    WINNER+ B1, EIRP - shadowing; -inf beyond the cut-off."""
+    if mover < j:
+        dx = positions_m[j, 0] - cx
+        dy = positions_m[j, 1] - cy
+    else:
+        dx = cx - positions_m[j, 0]
+        dy = cy - positions_m[j, 1]
+    if period_m[0] < np.inf:
+        dx -= period_m[0] * np.rint(dx / period_m[0])
+    if period_m[1] < np.inf:
+        dy -= period_m[1] * np.rint(dy / period_m[1])
+    if dx * dx + dy * dy > range2_m2:
+        return -np.inf
+    pl = winner_b1_pair_db(dx, dy, los_row[j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+    return gain_row_db[j] - pl
+
+
+@njit(cache=True)
+def _levels_db(interference_mw: FloatArray, noise_mw: float) -> FloatArray:
+    """[N] noise-plus-interference level (dB) of each receiver, as :func:`_link_success` computes it."""
+    out = np.empty(interference_mw.shape[0])
+    for j in range(out.shape[0]):
+        out[j] = 10.0 * math.log10(interference_mw[j] + noise_mw)
+    return out
+
+
+@njit(cache=True)
 def mover_row_success(
     candidates_m: FloatArray,
     positions_m: FloatArray,
@@ -315,30 +371,16 @@ def mover_row_success(
     """
     m_count = candidates_m.shape[0]
     n = positions_m.shape[0]
+    level_db = _levels_db(interference_mw, noise_mw)
     p = np.zeros((m_count, n))
     for m in range(m_count):
         for j in range(n):
-            if not target_row[j]:
-                continue
-            # the displacement as snapshot_links takes it: from the lower to the higher index
-            if mover < j:
-                dx = positions_m[j, 0] - candidates_m[m, 0]
-                dy = positions_m[j, 1] - candidates_m[m, 1]
-            else:
-                dx = candidates_m[m, 0] - positions_m[j, 0]
-                dy = candidates_m[m, 1] - positions_m[j, 1]
-            if period_m[0] < np.inf:
-                dx -= period_m[0] * np.rint(dx / period_m[0])
-            if period_m[1] < np.inf:
-                dy -= period_m[1] * np.rint(dy / period_m[1])
-            if dx * dx + dy * dy <= range2_m2:
-                pl = winner_b1_pair_db(dx, dy, los_row[j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
-                s_dbm = gain_row_db[j] - pl
-            else:
-                s_dbm = -np.inf
-            p[m, j] = _link_success(
-                s_dbm, interference_mw[j], noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
-            )
+            if target_row[j]:
+                s_dbm = _moved_signal_dbm(
+                    candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, j, period_m, los_row,
+                    gain_row_db, wb1, range2_m2,
+                )  # fmt: skip
+                p[m, j] = _success_at_level(s_dbm, level_db[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
     return p
 
 
@@ -369,36 +411,18 @@ def mover_row_utility(
     """
     m_count = candidates_m.shape[0]
     n = positions_m.shape[0]
-    level_db = np.empty(n)
-    for j in range(n):
-        level_db[j] = 10.0 * math.log10(interference_mw[j] + noise_mw)
+    level_db = _levels_db(interference_mw, noise_mw)
     out = np.zeros(m_count)
     for m in range(m_count):
         u = 0.0
         for j in range(n):
-            if not target_row[j]:
-                continue
-            if mover < j:
-                dx = positions_m[j, 0] - candidates_m[m, 0]
-                dy = positions_m[j, 1] - candidates_m[m, 1]
-            else:
-                dx = candidates_m[m, 0] - positions_m[j, 0]
-                dy = candidates_m[m, 1] - positions_m[j, 1]
-            if period_m[0] < np.inf:
-                dx -= period_m[0] * np.rint(dx / period_m[0])
-            if period_m[1] < np.inf:
-                dy -= period_m[1] * np.rint(dy / period_m[1])
-            x = 0.0
-            if dx * dx + dy * dy <= range2_m2:
-                pl = winner_b1_pair_db(dx, dy, los_row[j], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
-                s_dbm = gain_row_db[j] - pl
-                if not (s_dbm < sensitivity_dbm or s_dbm == -np.inf):
-                    sinr_db = s_dbm - level_db[j]
-                    if model == MODEL_PER_TABLE:
-                        x = _per_success(sinr_db, per_sinr_db, per)
-                    else:
-                        x = 1.0 if sinr_db >= threshold_db else 0.0
-            u += math.log(max(x, p_min))
+            if target_row[j]:
+                s_dbm = _moved_signal_dbm(
+                    candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, j, period_m, los_row,
+                    gain_row_db, wb1, range2_m2,
+                )  # fmt: skip
+                x = _success_at_level(s_dbm, level_db[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
+                u += math.log(max(x, p_min))
         out[m] = u
     return out
 
