@@ -66,6 +66,10 @@ def _number_type(
     return parse
 
 
+OVERWRITE_HELP = (
+    "replace a previous run in --out (kept until this run completes); without it a non-empty --out is refused"
+)
+
 POSITIVE_FLOAT = _number_type(float, 0.0, True)
 FRACTION = _number_type(float, 0.0, True, 1.0, True)
 COUNT = _number_type(int, 1, False)
@@ -101,7 +105,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     n = args.subframes if args.subframes is not None else cfg.sim.n_subframes
     if n < 1:
         raise ConfigError(f"--subframes must be >= 1, got {n}")
-    summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet)
+    summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet, overwrite=args.overwrite)
     if args.json:
         _print_json(summary)
     else:
@@ -125,7 +129,9 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     cfg = _scenario(args)
     if args.subframes is not None:
         cfg = apply_overrides(cfg, [f"sim.n_subframes={args.subframes}"])
-    manifest = build_dataset(cfg, args.runs, args.seed, args.out, args.aggregate_window_ms, progress=not args.quiet)
+    manifest = build_dataset(
+        cfg, args.runs, args.seed, args.out, args.aggregate_window_ms, progress=not args.quiet, overwrite=args.overwrite
+    )
     if args.json:
         _print_json({k: v for k, v in manifest.items() if k != "config"})
     else:
@@ -149,6 +155,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         min_samples=args.min_samples,
         compare=args.compare,
         figures=not args.no_figures,
+        overwrite=args.overwrite,
     )
     if args.json:
         _print_json(result)
@@ -162,7 +169,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
             )
         for k, o in result.get("comparison", {}).items():
             print(f"held out, {k}: R2 {o['r2']:.3f}, Brier {o['brier']:.4f}, log-loss {o['log_loss']:.4f}")
-        print(f"wrote {args.out}, {args.data / 'table2.md'}, {args.data / 'table3.md'}")
+        print(f"wrote {result['model']}, table2.md, table3.md and figures in {args.out}")
     return 0
 
 
@@ -186,6 +193,7 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
         truth_los=args.truth_los,
         methods=methods,
         progress=not args.quiet,
+        overwrite=args.overwrite,
     )
     if args.json:
         _print_json({k: v for k, v in summary.items() if k != "config"})
@@ -223,6 +231,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         delta=args.delta,
         progress=not args.quiet,
         vs_optimum=args.vs_optimum,
+        overwrite=args.overwrite,
     )
     if args.json:
         _print_json(summary)
@@ -244,7 +253,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.algo != "ppo":
         raise TrainError(f"--algo {args.algo!r} is not available; algorithms: ppo")
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
-    record = train(cfg, args.timesteps, args.seed, args.out, resume=args.resume, progress=not args.quiet)
+    record = train(
+        cfg, args.timesteps, args.seed, args.out, resume=args.resume, progress=not args.quiet, overwrite=args.overwrite
+    )
     if args.json:
         _print_json(record)
     else:
@@ -261,7 +272,14 @@ def _cmd_train(args: argparse.Namespace) -> int:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments.reproduce import reproduce
 
-    report = reproduce(args.out, quick=args.quick, seed=args.seed, models_dir=args.models, progress=not args.quiet)
+    report = reproduce(
+        args.out,
+        quick=args.quick,
+        seed=args.seed,
+        models_dir=args.models,
+        progress=not args.quiet,
+        overwrite=args.overwrite,
+    )
     print(f"wrote {args.out / 'REPORT.md'} and report.json ({report['runtime_s']:.0f} s)")
     return 0
 
@@ -298,6 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--subframes", type=COUNT, help="subframes to simulate (default: sim.n_subframes)")
     p.add_argument("--out", type=Path, help="output folder for links.parquet, summary.json, prr_vs_distance.png")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_simulate)
@@ -314,13 +333,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="aggregate per (run, link, window, NSV) into an empirical reception rate (0: per transmission)",
     )
     p.add_argument("--out", type=Path, required=True, help="dataset folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true", help="print the manifest as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_dataset)
 
     p = sub.add_parser("fit", help="stage-2 fit of the two-distance model per NSV (eq. 15)")
     p.add_argument("--data", type=Path, required=True, help="dataset folder (from `cv2x-marl dataset`)")
-    p.add_argument("--out", type=Path, required=True, help="model file to write (JSON)")
+    p.add_argument("--out", type=Path, required=True, help="fit folder: model.json, table2.md, table3.md, figures")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--model", default="linear", choices=["linear", "logistic"], help="model family")
     p.add_argument("--target", default="p_success", choices=["p_success", "outcome", "rate"])
     p.add_argument("--nsv-cap", type=COUNT, default=6, help="NSV values above are pooled into the cap")
@@ -341,7 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--th-pos", type=POSITIVE_FLOAT, default=1e-4, help="stop when a move is shorter than this (m)")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument(
-        "--model", type=Path, default=Path("paper-table2"), help="fitted model JSON, or paper-table2 (default)"
+        "--model",
+        type=Path,
+        default=Path("paper-table2"),
+        help="fit folder or model.json (from `cv2x-marl fit`), or paper-table2 (default)",
     )
     p.add_argument("--methods", default="gbmu,greedy,oracle", help="comma-separated: gbmu, greedy, oracle")
     p.add_argument(
@@ -351,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="LOS state of the mover's links in the ground truth",
     )
     p.add_argument("--out", type=Path, help="output folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_gbmu)
@@ -382,9 +407,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="-v2 envs: recompute the sensing plan every N steps (default: a ppo:PATH model's setting, else once)",
     )
-    p.add_argument("--model", type=Path, default=Path("paper-table2"), help="two-distance model for gbmu/greedy")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=Path("paper-table2"),
+        help="two-distance model for gbmu/greedy/planner: a fit folder, a model.json or paper-table2",
+    )
     p.add_argument("--delta", type=POSITIVE_FLOAT, default=100.0, help="GBMU/greedy/oracle step size per env step")
     p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
@@ -397,13 +428,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--copies", type=COUNT, default=None, help="env copies (each mover of each copy is a sub-env)")
     p.add_argument("--config", type=Path, help="YAML/JSON: env_id, copies, env, ppo, checkpoint_every, eval_*")
     p.add_argument("--out", type=Path, required=True, help="run folder")
-    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its newest checkpoint (to --timesteps)"
+    )
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("reproduce", help="dataset, fit, GBMU study, movers vs baselines, REPORT.md")
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--quick", action="store_true", help="smaller settings: about a minute on 2 cores")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
@@ -428,8 +463,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``cv2x-marl`` console script."""
+    from cv2x_marl import runs
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    runs.INVOCATION = ["cv2x-marl", *(sys.argv[1:] if argv is None else argv)]
+    previous = _terminate_as_interrupt()
     try:
         return int(args.func(args))
     except ConfigError as exc:
@@ -438,6 +477,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DatasetError, FitError, ModelError, TrainError, ValueError, MissingExtraError) as exc:
         print(f"cv2x-marl: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a full disk, a folder that vanished: the run folder was rolled back
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"cv2x-marl: file system error{where}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as exc:
+        detail = f": {exc}" if str(exc) else "; the output folder was left as it was before the run"
+        print(f"\ncv2x-marl: interrupted{detail}", file=sys.stderr)
+        return 130
+    finally:
+        runs.INVOCATION = None
+        _restore_signal(previous)
+
+
+def _terminate_as_interrupt() -> Any:
+    """Make SIGTERM raise KeyboardInterrupt like Ctrl-C, so every run cleans up the same way."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, handler)
+
+
+def _restore_signal(previous: Any) -> None:
+    import signal
+
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

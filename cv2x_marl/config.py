@@ -116,7 +116,12 @@ def _coerce(key: str, value: Any, tp: type, meta: Mapping[str, Any]) -> Any:
             raise ConfigError(f"{key}: expected true or false, got {value!r}")
         return value
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int | float) or float(value) != int(value):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+            or float(value) != int(value)
+        ):
             raise ConfigError(f"{key}: expected an integer in {_allowed(meta)}, got {value!r}")
         value = int(value)
     elif tp is float:
@@ -137,6 +142,10 @@ def _coerce(key: str, value: Any, tp: type, meta: Mapping[str, Any]) -> Any:
     if hi is not None and value > hi:
         raise ConfigError(f"{key}: {value!r} is out of range; allowed range: {_allowed(meta)}")
     return value
+
+
+#: the most vehicles a scenario may have (also the cap on density x road length)
+MAX_VEHICLES = 100_000
 
 
 @dataclass(frozen=True)
@@ -172,7 +181,7 @@ class VehiclesConfig(Section):
     """Vehicle population and speeds."""
 
     _name = "vehicles"
-    n_vehicles: int = _key(21, "Number of vehicles (ignored when density_veh_per_m is set)", "", 2, 100000)
+    n_vehicles: int = _key(21, "Number of vehicles (ignored when density_veh_per_m is set)", "", 2, MAX_VEHICLES)
     density_veh_per_m: float | None = _key(
         None,
         "Vehicles per metre of road, all lanes and directions together; null: use n_vehicles",
@@ -390,6 +399,13 @@ class ScenarioConfig:
     sim: SimConfig = field(default_factory=SimConfig)
 
     def __post_init__(self) -> None:
+        if self.vehicles.density_veh_per_m is not None and self.n_vehicles > MAX_VEHICLES:
+            raise ConfigError(
+                f"vehicles.density_veh_per_m ({self.vehicles.density_veh_per_m:g}) x road length gives "
+                f"{self.n_vehicles} vehicles, above the maximum of {MAX_VEHICLES}; lower "
+                "vehicles.density_veh_per_m or road.length_m"
+                + (" or road.n_roads_per_axis" if self.road.kind == "grid" else "")
+            )
         if self.link.model == "rayleigh" and self.channel.fading != "rayleigh":
             raise ConfigError(
                 "link.model=rayleigh integrates over Rayleigh fading: it needs channel.fading=rayleigh "
@@ -477,14 +493,11 @@ def preset(name: str) -> ScenarioConfig:
     return from_dict(PRESETS[name])
 
 
-def _parse_value(text: str) -> Any:
-    import yaml
-
-    return yaml.safe_load(text) if text.strip() else None
-
-
 def apply_overrides(cfg: ScenarioConfig, assignments: Iterable[str]) -> ScenarioConfig:
-    """Apply ``section.key=value`` strings (values parsed as YAML scalars: 4, 0.5, true, null)."""
+    """Apply ``section.key=value`` strings (values parsed as YAML 1.2 core scalars, :mod:`cv2x_marl.yamlcore`:
+    4, 0.5, 5.9e9, true, null; ``010`` is 10, ``1:40`` a string)."""
+    from cv2x_marl.yamlcore import YAMLError, parse_scalar
+
     nested: dict[str, dict[str, Any]] = {}
     for item in assignments:
         if "=" not in item:
@@ -493,22 +506,23 @@ def apply_overrides(cfg: ScenarioConfig, assignments: Iterable[str]) -> Scenario
         if dotted.count(".") != 1:
             raise ConfigError(f"--set expects section.key=value, got {item!r}")
         section, key = dotted.strip().split(".")
-        nested.setdefault(section, {})[key] = _parse_value(value)
+        try:
+            nested.setdefault(section, {})[key] = parse_scalar(value)
+        except YAMLError as exc:
+            raise ConfigError(f"--set {dotted.strip()}: {value!r} is not a valid YAML value: {exc}") from exc
     return from_dict(nested, cfg)
 
 
 def load_config_file(path: str | Path, base: ScenarioConfig | None = None) -> ScenarioConfig:
-    """Read a YAML or JSON configuration file (nested sections) over ``base``."""
-    import yaml
+    """Read a YAML (1.2 core schema) or JSON configuration file (nested sections) over ``base``."""
+    from cv2x_marl.yamlcore import YAMLError, load_path
 
     path = Path(path)
     try:
-        text = path.read_text()
+        data = load_path(path)
     except OSError as exc:
         raise ConfigError(f"cannot read configuration file {path}: {exc}") from exc
-    try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+    except (ValueError, YAMLError) as exc:
         raise ConfigError(f"configuration file {path} is not valid {path.suffix[1:] or 'YAML'}: {exc}") from exc
     data = data or {}
     if not isinstance(data, dict):

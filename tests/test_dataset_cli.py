@@ -44,7 +44,8 @@ def test_fit_writes_model_tables_and_json(tmp_path: Path, capsys: pytest.Capture
     data = tmp_path / "ds"
     _dataset(data)
     capsys.readouterr()
-    rc = main(["fit", "--data", str(data), "--out", str(tmp_path / "m.json"), "--json", "--compare", "--nsv-cap", "2"])
+    fit = tmp_path / "fit"
+    rc = main(["fit", "--data", str(data), "--out", str(fit), "--json", "--compare", "--nsv-cap", "2"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert [r["nsv"] for r in out["per_nsv"]] == [0, 1, 2]
@@ -52,19 +53,24 @@ def test_fit_writes_model_tables_and_json(tmp_path: Path, capsys: pytest.Capture
         assert {"alpha", "beta", "gamma", "r2", "r2_test", "instances"} <= set(r)
     assert out["per_nsv"][0]["alpha"] < 0  # P falls with the signal distance
     assert set(out["comparison"]) == {"linear", "logistic"}
-    for name in ("table2.md", "table3.md", "fig2_surface.png", "fit_quality.png", "model_comparison.md"):
-        assert (data / name).exists(), name
-    assert "alpha" in (data / "table2.md").read_text()
-    assert json.loads((tmp_path / "m.json").read_text())["provenance"]["dataset_runs"] == 3
+    for name in ("model.json", "table2.md", "table3.md", "fig2_surface.png", "fit_quality.png", "model_comparison.md"):
+        assert (fit / name).exists(), name
+    assert "alpha" in (fit / "table2.md").read_text()
+    assert json.loads((fit / "model.json").read_text())["provenance"]["dataset_runs"] == 3
+    # the dataset folder is only read: its files are those its own run listed
+    assert sorted(p.name for p in data.iterdir()) == ["manifest.json", "run.json", "samples.parquet"]
 
 
 def test_fit_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
-    assert main(["fit", "--data", str(empty), "--out", str(tmp_path / "m.json")]) == 2
+    assert main(["fit", "--data", str(empty), "--out", str(tmp_path / "m")]) == 2
     assert "manifest.json" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()  # a refused input leaves no output folder
+    assert main(["fit", "--data", str(empty), "--out", str(tmp_path / "m.json")]) == 2
+    assert "is a folder" in capsys.readouterr().err
     data = tmp_path / "ds"
     _dataset(data)
     (data / "samples.parquet").write_bytes(b"PAR1 this is not parquet")
-    assert main(["fit", "--data", str(data), "--out", str(tmp_path / "m.json")]) == 2
+    assert main(["fit", "--data", str(data), "--out", str(tmp_path / "m")]) == 2
     assert "samples.parquet" in capsys.readouterr().err

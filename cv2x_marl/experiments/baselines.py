@@ -22,6 +22,7 @@ from typing import Any
 
 from cv2x_marl.checks import is_real
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.runs import locked
 
 SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
 KEYS = ("policy", "model", "delta", "env_id", "env", "description")
@@ -56,17 +57,13 @@ def is_baseline_file(spec: str) -> bool:
 
 def load_baseline(path: str | Path) -> Baseline:
     """Read and validate a baseline file; errors name the file, the key and the allowed values."""
-    import json
-
-    import yaml
-
     from cv2x_marl.experiments.evaluate import ENV_IDS
+    from cv2x_marl.yamlcore import YAMLError, load_path
 
     path = Path(path)
     try:
-        text = path.read_text()
-        data = (json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)) or {}
-    except (OSError, json.JSONDecodeError, yaml.YAMLError) as exc:
+        data = load_path(path) or {}
+    except (OSError, ValueError, YAMLError) as exc:
         raise ValueError(f"cannot read baseline file {path}: {exc}") from exc
     if not isinstance(data, dict):
         raise ValueError(f"baseline file {path} must be a mapping with keys {', '.join(KEYS)}")
@@ -107,9 +104,19 @@ def run_baselines(
 ) -> dict[str, Any]:
     """Evaluate every baseline of ``folder`` on the same episodes; write ``results.json`` and
     ``results.md`` there; return the results. ``env_id`` overrides the files' own env ids."""
+    specs = [load_baseline(p) for p in baseline_files(folder)]
+    with locked(folder, "baselines"):  # one run at a time writes the folder's results
+        result = _run(specs, folder, episodes, seed, env_id, progress)
+        write_json(Path(folder) / "results.json", result)
+        atomic_write(Path(folder) / "results.md", lambda p: p.write_text(render_table(result)))
+    return result
+
+
+def _run(
+    specs: list[Baseline], folder: str | Path, episodes: int, seed: int, env_id: str | None, progress: bool
+) -> dict[str, Any]:
     from cv2x_marl.experiments.evaluate import evaluate
 
-    specs = [load_baseline(p) for p in baseline_files(folder)]
     rows = []
     for spec in specs:
         res = evaluate(
@@ -130,9 +137,6 @@ def run_baselines(
         best = optimum.get(r["env"])
         r["share_of_optimum"] = r["mean_utility_gain"] / best if best else None
     result = {"episodes": episodes, "seed": seed, "command": _command(folder, episodes, seed, env_id), "rows": rows}
-    folder = Path(folder)
-    write_json(folder / "results.json", result)
-    atomic_write(folder / "results.md", lambda p: p.write_text(render_table(result)))
     return result
 
 

@@ -23,6 +23,7 @@ from cv2x_marl.experiments.simulate import write_parquet
 from cv2x_marl.io import write_json
 from cv2x_marl.regression import FitData, FitError, TwoDistanceModel, fit_two_distance
 from cv2x_marl.rng import derive_seeds
+from cv2x_marl.runs import RunFolder, sha256_file
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.metrics import CAUSE_CODE
 
@@ -70,21 +71,32 @@ def build_dataset(
     out_dir: Path,
     aggregate_window_ms: int = 0,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run ``runs`` independent stage-1 simulations and write their link samples.
 
     Samples are the links to target receivers (half-duplex pairs are not targets, paper Sec. 4)
     with ``d_m``, ``l_m``, ``nsv``, ``p_success``, ``outcome`` (per transmission), or, with
     ``aggregate_window_ms > 0``, per (run, link, window, NSV) means with the empirical ``rate``.
+    ``out_dir`` is a run folder (:class:`cv2x_marl.runs.RunFolder`); the manifest records the
+    SHA-256 of ``samples.parquet``, checked by :func:`load_dataset`.
     """
-    from tqdm import tqdm
-
     if runs < 1:
         raise DatasetError(f"--runs must be >= 1, got {runs}")
     if aggregate_window_ms < 0:
         raise DatasetError(f"--aggregate-window-ms must be >= 0, got {aggregate_window_ms}")
     if not cfg.metrics.record_links:
         raise DatasetError("metrics.record_links=false leaves no link samples; set it to true")
+    params = {"runs": runs, "seed": seed, "aggregate_window_ms": aggregate_window_ms}
+    with RunFolder(out_dir, "dataset", overwrite=overwrite, parameters=params):
+        return _build_dataset(cfg, runs, seed, Path(out_dir), aggregate_window_ms, progress)
+
+
+def _build_dataset(
+    cfg: ScenarioConfig, runs: int, seed: int, out_dir: Path, aggregate_window_ms: int, progress: bool
+) -> dict[str, Any]:
+    from tqdm import tqdm
+
     t0 = time.perf_counter()
     seeds = derive_seeds(seed, runs)
     parts: list[dict[str, np.ndarray]] = []
@@ -112,8 +124,6 @@ def build_dataset(
     cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     if aggregate_window_ms:
         cols = _aggregate(cols, aggregate_window_ms, n_vehicles)
-    out_dir = Path(out_dir)
-    (out_dir / MANIFEST).unlink(missing_ok=True)  # the manifest marks a complete dataset
     write_parquet(pa.table(cols), out_dir / SAMPLES)
     nsv_counts = np.bincount(cols["nsv"].astype(np.int64))
     manifest = {
@@ -125,6 +135,7 @@ def build_dataset(
         "rows": int(cols["d_m"].shape[0]),
         "rows_per_nsv": {str(k): int(c) for k, c in enumerate(nsv_counts) if c},
         "columns": list(cols),
+        "sha256": {SAMPLES: sha256_file(out_dir / SAMPLES)},
         "target_default": "p_success",
         "runtime_s": time.perf_counter() - t0,
         "versions": {
@@ -155,6 +166,11 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{mpath} is not valid JSON: {exc}") from exc
     spath = data_dir / SAMPLES
+    expected = (manifest.get("sha256") or {}).get(SAMPLES)
+    if expected is not None and spath.is_file() and sha256_file(spath) != expected:
+        raise DatasetError(
+            f"{spath} does not match the SHA-256 in {mpath}: the file was changed or corrupted; rebuild the dataset"
+        )
     try:
         table = pq.read_table(spath)
     except (OSError, pa.ArrowInvalid) as exc:
@@ -219,9 +235,12 @@ def _table3_md(model: TwoDistanceModel) -> str:
     return "\n".join(lines) + "\n"
 
 
+MODEL = "model.json"
+
+
 def run_fit(
     data_dir: Path,
-    out: Path,
+    out_dir: Path,
     kind: str = "linear",
     target: str = "p_success",
     nsv_cap: int = 6,
@@ -230,29 +249,76 @@ def run_fit(
     min_samples: int = 30,
     compare: bool = False,
     figures: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Fit, write the model, ``table2.md``, ``table3.md`` and figures into the dataset folder."""
-    cols, manifest = load_dataset(data_dir)
+    """Fit the dataset of ``data_dir`` and write the fit folder ``out_dir``.
+
+    ``out_dir`` (a run folder, :class:`cv2x_marl.runs.RunFolder`) receives ``model.json``,
+    ``table2.md``, ``table3.md``, with ``compare`` ``model_comparison.{md,json}``, and the
+    figures ``fig2_surface.png`` and ``fit_quality.png``; the dataset folder is only read.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.suffix == ".json":
+        raise FitError(
+            f"fit --out is a folder (it receives {MODEL}, tables and figures), got the file name {out_dir}; "
+            f"use e.g. --out {out_dir.with_suffix('')}"
+        )
+    cols, manifest = load_dataset(data_dir)  # a bad dataset is refused before the folder is touched
+    params = {"data": str(data_dir), "kind": kind, "target": target, "nsv_cap": nsv_cap, "seed": seed}
+    with RunFolder(out_dir, "fit", overwrite=overwrite, parameters=params):
+        return _fit(
+            cols,
+            manifest,
+            Path(data_dir),
+            out_dir,
+            kind,
+            target,
+            nsv_cap,
+            test_fraction,
+            seed,
+            min_samples,
+            compare,
+            figures,
+        )
+
+
+def _fit(
+    cols: dict[str, np.ndarray],
+    manifest: dict[str, Any],
+    data_dir: Path,
+    out_dir: Path,
+    kind: str,
+    target: str,
+    nsv_cap: int,
+    test_fraction: float,
+    seed: int,
+    min_samples: int,
+    compare: bool,
+    figures: bool,
+) -> dict[str, Any]:
+    from cv2x_marl.io import atomic_write
+
     data = fit_data(cols, target)
     kinds = [kind] + ([k for k in ("linear", "logistic") if k != kind] if compare else [])
     models = {k: fit_two_distance(data, k, nsv_cap, test_fraction, seed, min_samples) for k in kinds}
     model = models[kind]
     model.provenance.update(
         {
-            "dataset": str(Path(data_dir).resolve()),
+            "dataset": str(data_dir.resolve()),
             "dataset_rows": manifest.get("rows"),
             "dataset_runs": manifest.get("runs"),
             "dataset_seed": manifest.get("seed"),
+            "dataset_sha256": (manifest.get("sha256") or {}).get(SAMPLES),
             "aggregate_window_ms": manifest.get("aggregate_window_ms"),
             "target": target,
             "nsv_cap": nsv_cap,
         }
     )
-    model.save(out)
-    data_dir = Path(data_dir)
-    (data_dir / "table2.md").write_text(_table2_md(model))
-    (data_dir / "table3.md").write_text(_table3_md(model))
-    result: dict[str, Any] = {"model": str(out), "kind": kind, "per_nsv": model.to_dict()["per_nsv"]}
+    model_path = out_dir / MODEL
+    model.save(model_path)
+    atomic_write(out_dir / "table2.md", lambda p: p.write_text(_table2_md(model)))
+    atomic_write(out_dir / "table3.md", lambda p: p.write_text(_table3_md(model)))
+    result: dict[str, Any] = {"model": str(model_path), "kind": kind, "per_nsv": model.to_dict()["per_nsv"]}
     result["overall_test"] = model.provenance["overall_test"]
     if compare:
         result["comparison"] = {k: m.provenance["overall_test"] for k, m in models.items()}
@@ -260,18 +326,21 @@ def run_fit(
         for k, m in models.items():
             o = m.provenance["overall_test"]
             rows.append(f"| {k} | {o['r2']:.3f} | {o['brier']:.4f} | {o['log_loss']:.4f} |")
-        (data_dir / "model_comparison.md").write_text("\n".join(rows) + "\n")
-        write_json(data_dir / "model_comparison.json", result["comparison"])
+        atomic_write(out_dir / "model_comparison.md", lambda p: p.write_text("\n".join(rows) + "\n"))
+        write_json(out_dir / "model_comparison.json", result["comparison"])
     if figures:
         from cv2x_marl.plotting import plot_fit_quality, plot_surface
 
-        plot_surface(model, data_dir / "fig2_surface.png")
-        plot_fit_quality(model, data_dir / "fit_quality.png")
+        plot_surface(model, out_dir / "fig2_surface.png")
+        plot_fit_quality(model, out_dir / "fit_quality.png")
     return result
 
 
-def load_model(path: Path) -> TwoDistanceModel:
-    """Load a model file, or the ``paper-table2`` preset by name."""
+def load_model(path: Path | str) -> TwoDistanceModel:
+    """Load a model: ``paper-table2`` (the preset), a fit folder (its ``model.json``) or a model file."""
     if str(path) == "paper-table2":
         return TwoDistanceModel.paper_table2()
+    path = Path(path)
+    if path.is_dir():
+        path = path / MODEL
     return TwoDistanceModel.load(path)

@@ -19,6 +19,7 @@ from cv2x_marl.env.mobility_env import MobilityEnv
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
 from cv2x_marl.rng import derive_seeds
+from cv2x_marl.runs import check_file, run_folder
 
 ENV_IDS = (
     "cv2x/Mobility-v0",
@@ -89,6 +90,7 @@ class PpoPolicy:
             path = Path(path)
             if not path.exists():
                 raise ValueError(f"PPO model file {path} does not exist")
+            check_file(path)  # against the checksum in the run folder's run.json, when it has one
             from cv2x_marl.extras import require
 
             PPO = require("stable_baselines3", f"loading the PPO model {path}").PPO
@@ -168,6 +170,7 @@ def evaluate(
     delta: float = 100.0,
     progress: bool = True,
     vs_optimum: bool = False,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns.
 
@@ -180,6 +183,9 @@ def evaluate(
         vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
             (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
             utility gain over the optimum's on the same episodes.
+        out_dir: a run folder (:class:`cv2x_marl.runs.RunFolder`) for ``episodes.csv`` and
+            ``summary.json``; None writes nothing.
+        overwrite: replace a previous run in ``out_dir``.
     """
     from tqdm import tqdm
 
@@ -204,88 +210,90 @@ def evaluate(
     else:
         policy = policy_spec
         policy_spec = policy.name
-    movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
-    zero = np.zeros(2, dtype=np.float32)
-    rows: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    steps = 0
-    for ep, ep_seed in enumerate(
-        tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
-    ):
-        obs, infos = env.reset(seed=ep_seed)
-        policy.reset(ep_seed)
-        u_opt = optimum_utilities(env) if vs_optimum else None
-        returns = dict.fromkeys(movers, 0.0)
-        last = infos
-        while env.agents:
-            acts = policy.act({a: obs[a] for a in movers})
-            full = {a: acts.get(a, zero) for a in env.agents}
-            obs, rew, _, _, last = env.step(full)
-            steps += 1
+    params = {"env_id": env_id, "policy": str(policy_spec), "episodes": episodes, "seed": seed}
+    with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params):
+        movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
+        zero = np.zeros(2, dtype=np.float32)
+        rows: list[dict[str, Any]] = []
+        t0 = time.perf_counter()
+        steps = 0
+        for ep, ep_seed in enumerate(
+            tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+        ):
+            obs, infos = env.reset(seed=ep_seed)
+            policy.reset(ep_seed)
+            u_opt = optimum_utilities(env) if vs_optimum else None
+            returns = dict.fromkeys(movers, 0.0)
+            last = infos
+            while env.agents:
+                acts = policy.act({a: obs[a] for a in movers})
+                full = {a: acts.get(a, zero) for a in env.agents}
+                obs, rew, _, _, last = env.step(full)
+                steps += 1
+                for a in movers:
+                    returns[a] += rew[a]
             for a in movers:
-                returns[a] += rew[a]
-        for a in movers:
-            info = last[a]
-            rows.append(
-                {
-                    "episode": ep,
-                    "seed": ep_seed,
-                    "agent": a,
-                    "utility_start": info["utility_start"],
-                    "utility_end": info["utility"],
-                    "prr_start": info["prr_start"],
-                    "prr_end": info["prr"],
-                    "jain_end": info["jain"],
-                    "return": returns[a],
-                }
-            )
-            if u_opt is not None:
-                rows[-1]["utility_optimum"] = float(u_opt[env.agent_index[a]])
-    runtime = time.perf_counter() - t0
-    u0 = np.array([r["utility_start"] for r in rows])
-    u1 = np.array([r["utility_end"] for r in rows])
-    p0 = np.array([r["prr_start"] for r in rows])
-    p1 = np.array([r["prr_end"] for r in rows])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
-        pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
-    for r, a, b in zip(rows, ug, pg, strict=True):
-        r["utility_gain"], r["prr_gain"] = float(a), float(b)
-    summary: dict[str, Any] = {
-        "env": env_id,
-        "policy": policy_spec,
-        "episodes": episodes,
-        "seed": seed,
-        "movers_per_episode": len(movers),
-        "mean_utility_gain": float(np.nanmean(ug)),
-        "mean_prr_gain": float(np.nanmean(pg)),
-        "effectiveness": float(np.mean(ug > 1e-9)),
-        "n_prr_drop": int(np.sum(pg < -1e-9)),
-        "jain_fairness": float(np.mean([r["jain_end"] for r in rows])),
-        "mean_return": float(np.mean([r["return"] for r in rows])),
-        "mean_prr_start": float(np.mean(p0)),
-        "mean_prr_end": float(np.mean(p1)),
-        "max_cycles": env.max_cycles,
-        "max_step_m": env.max_step_m,
-        "runtime_s": runtime,
-        "env_steps": steps,
-    }
-    if vs_optimum:
-        uo = np.array([r["utility_optimum"] for r in rows])
+                info = last[a]
+                rows.append(
+                    {
+                        "episode": ep,
+                        "seed": ep_seed,
+                        "agent": a,
+                        "utility_start": info["utility_start"],
+                        "utility_end": info["utility"],
+                        "prr_start": info["prr_start"],
+                        "prr_end": info["prr"],
+                        "jain_end": info["jain"],
+                        "return": returns[a],
+                    }
+                )
+                if u_opt is not None:
+                    rows[-1]["utility_optimum"] = float(u_opt[env.agent_index[a]])
+        runtime = time.perf_counter() - t0
+        u0 = np.array([r["utility_start"] for r in rows])
+        u1 = np.array([r["utility_end"] for r in rows])
+        p0 = np.array([r["prr_start"] for r in rows])
+        p1 = np.array([r["prr_end"] for r in rows])
         with np.errstate(divide="ignore", invalid="ignore"):
-            og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
-        summary["optimum_utility_gain"] = float(np.nanmean(og))
-        summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
-        summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
-    if out_dir is not None:
-        out_dir = Path(out_dir)
+            ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
+            pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
+        for r, a, b in zip(rows, ug, pg, strict=True):
+            r["utility_gain"], r["prr_gain"] = float(a), float(b)
+        summary: dict[str, Any] = {
+            "env": env_id,
+            "policy": policy_spec,
+            "episodes": episodes,
+            "seed": seed,
+            "movers_per_episode": len(movers),
+            "mean_utility_gain": float(np.nanmean(ug)),
+            "mean_prr_gain": float(np.nanmean(pg)),
+            "effectiveness": float(np.mean(ug > 1e-9)),
+            "n_prr_drop": int(np.sum(pg < -1e-9)),
+            "jain_fairness": float(np.mean([r["jain_end"] for r in rows])),
+            "mean_return": float(np.mean([r["return"] for r in rows])),
+            "mean_prr_start": float(np.mean(p0)),
+            "mean_prr_end": float(np.mean(p1)),
+            "max_cycles": env.max_cycles,
+            "max_step_m": env.max_step_m,
+            "runtime_s": runtime,
+            "env_steps": steps,
+        }
+        if vs_optimum:
+            uo = np.array([r["utility_optimum"] for r in rows])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+            summary["optimum_utility_gain"] = float(np.nanmean(og))
+            summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
+            summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+        if out_dir is not None:
+            out_dir = Path(out_dir)
 
-        def write(tmp: Path) -> None:
-            with tmp.open("w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-                w.writeheader()
-                w.writerows(rows)
+            def write(tmp: Path) -> None:
+                with tmp.open("w", newline="") as fh:
+                    w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                    w.writeheader()
+                    w.writerows(rows)
 
-        atomic_write(out_dir / "episodes.csv", write)
-        write_json(out_dir / "summary.json", summary)
-    return summary
+            atomic_write(out_dir / "episodes.csv", write)
+            write_json(out_dir / "summary.json", summary)
+        return summary

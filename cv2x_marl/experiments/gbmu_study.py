@@ -23,6 +23,7 @@ from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.gbmu import ClimbResult, GbmuInputs, climb, gbmu_direction, oracle_direction
 from cv2x_marl.regression.model import TwoDistanceModel
 from cv2x_marl.rng import derive_seeds
+from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator, Snapshot
 from cv2x_marl.sim.evaluate import MoverLinks
 from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, utility_log
@@ -250,6 +251,7 @@ def run_study(
     truth_los: str = "snapshot",
     methods: Sequence[str] = METHODS,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run one of the paper's cases and write CSV, figures and ``summary.json`` into ``out_dir``."""
     if case not in CASES:
@@ -257,50 +259,52 @@ def run_study(
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(METHODS)}")
-    t0 = time.perf_counter()
-    if case == "seven-node":
-        cfg = apply_overrides(cfg, ["channel.los=always"])
-        snaps = [seven_node_snapshot(cfg.sps.n_subchannels)]
-        movers = [0]
-        seeds = [seed]
-        truth_los = "always"
-    elif case == "snapshot":
-        seeds = [seed]
-        snaps = _snapshots(cfg, seeds, progress)
-        pos = snaps[0].positions_m
-        movers = [int(np.argmax(np.hypot(*(pos - pos.mean(axis=0)).T)))]  # the most off-centre vehicle
-    else:
-        seeds = derive_seeds(seed, realizations)
-        snaps = _snapshots(cfg, seeds, progress)
-        movers = [0] * len(snaps)
-    links = MoverLinks.from_snapshots(cfg, snaps, movers, truth_los=truth_los)
-    inputs = gbmu_inputs(snaps, movers, links, cfg.metrics.interferer_range_m)
-    record_every = max(1, iterations // 1000) if case != "realizations" else max(1, iterations // 100)
-    runs = run_methods(links, inputs, model, delta, th_pos_m, iterations, record_every, methods, progress)
-    summary = summarize(runs)
-    summary.update(
-        {
-            "case": case,
-            "seed": seed,
-            "iterations": iterations,
-            "step": delta,
-            "th_pos_m": th_pos_m,
-            "truth_los": truth_los,
-            "movers": movers,
-            "model": {"kind": model.kind, "provenance": model.provenance},
-            "runtime_s": time.perf_counter() - t0,
-            "config": to_dict(cfg),
-        }
-    )
-    if out_dir is not None:
-        out_dir = Path(out_dir)
-        _write_csv(out_dir / "realizations.csv", runs, seeds)
-        write_json(out_dir / "summary.json", summary)
-        from cv2x_marl import plotting
-
-        if case == "realizations":
-            plotting.plot_realization_gains(runs, out_dir / "fig9_fig10_gains.png")
+    params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "step": delta}
+    with run_folder(out_dir, "gbmu", overwrite=overwrite, parameters=params):
+        t0 = time.perf_counter()
+        if case == "seven-node":
+            cfg = apply_overrides(cfg, ["channel.los=always"])
+            snaps = [seven_node_snapshot(cfg.sps.n_subchannels)]
+            movers = [0]
+            seeds = [seed]
+            truth_los = "always"
+        elif case == "snapshot":
+            seeds = [seed]
+            snaps = _snapshots(cfg, seeds, progress)
+            pos = snaps[0].positions_m
+            movers = [int(np.argmax(np.hypot(*(pos - pos.mean(axis=0)).T)))]  # the most off-centre vehicle
         else:
-            plotting.plot_trajectories(snaps[0], movers[0], links.target[0], runs, out_dir / "trajectory.png", case)
-            plotting.plot_gain_curves(runs, out_dir / "gain_vs_iteration.png", case)
-    return summary
+            seeds = derive_seeds(seed, realizations)
+            snaps = _snapshots(cfg, seeds, progress)
+            movers = [0] * len(snaps)
+        links = MoverLinks.from_snapshots(cfg, snaps, movers, truth_los=truth_los)
+        inputs = gbmu_inputs(snaps, movers, links, cfg.metrics.interferer_range_m)
+        record_every = max(1, iterations // 1000) if case != "realizations" else max(1, iterations // 100)
+        runs = run_methods(links, inputs, model, delta, th_pos_m, iterations, record_every, methods, progress)
+        summary = summarize(runs)
+        summary.update(
+            {
+                "case": case,
+                "seed": seed,
+                "iterations": iterations,
+                "step": delta,
+                "th_pos_m": th_pos_m,
+                "truth_los": truth_los,
+                "movers": movers,
+                "model": {"kind": model.kind, "provenance": model.provenance},
+                "runtime_s": time.perf_counter() - t0,
+                "config": to_dict(cfg),
+            }
+        )
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            _write_csv(out_dir / "realizations.csv", runs, seeds)
+            write_json(out_dir / "summary.json", summary)
+            from cv2x_marl import plotting
+
+            if case == "realizations":
+                plotting.plot_realization_gains(runs, out_dir / "fig9_fig10_gains.png")
+            else:
+                plotting.plot_trajectories(snaps[0], movers[0], links.target[0], runs, out_dir / "trajectory.png", case)
+                plotting.plot_gain_curves(runs, out_dir / "gain_vs_iteration.png", case)
+        return summary

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.config import preset
-from cv2x_marl.io import write_json
+from cv2x_marl.io import atomic_write, write_json
 
 SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
 ENVS = {"single": "cv2x/SingleMover-v2", "multi": "cv2x/Mobility-v2"}
@@ -40,16 +40,27 @@ def _row(method: str, results: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def reproduce(
-    out: Path, quick: bool = False, seed: int = 0, models_dir: Path = Path("agents/models"), progress: bool = True
+    out: Path,
+    quick: bool = False,
+    seed: int = 0,
+    models_dir: Path = Path("agents/models"),
+    progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Run every stage; return the report's data."""
+    """Run every stage into the run folder ``out`` (one run folder per stage inside it); return the report."""
+    from cv2x_marl.runs import RunFolder
+
+    params = {"quick": quick, "seed": seed, "models_dir": str(models_dir)}
+    with RunFolder(out, "reproduce", overwrite=overwrite, parameters=params):
+        return _reproduce(Path(out), quick, seed, Path(models_dir), progress)
+
+
+def _reproduce(out: Path, quick: bool, seed: int, models_dir: Path, progress: bool) -> dict[str, Any]:
     from cv2x_marl import plotting
     from cv2x_marl.experiments.dataset import build_dataset, load_model, run_fit
     from cv2x_marl.experiments.evaluate import evaluate
     from cv2x_marl.experiments.gbmu_study import run_study
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     settings = {
         "runs": 4 if quick else 10,
@@ -63,10 +74,10 @@ def reproduce(
     log(f"[1/4] stage-1 dataset: {settings['runs']} paper runs")
     build_dataset(cfg, settings["runs"], seed, out / "dataset", progress=False)
     log("[2/4] stage-2 fit (linear eq. 15, compared with logistic)")
-    fit = run_fit(out / "dataset", out / "dataset" / "model-linear.json", compare=True)
+    fit = run_fit(out / "dataset", out / "fit", compare=True)
     log(f"[3/4] GBMU study: {settings['realizations']} realisations x {settings['iterations']} iterations")
     study = {}
-    for name, model_path in (("paper-table2", "paper-table2"), ("ours", str(out / "dataset" / "model-linear.json"))):
+    for name, model_path in (("paper-table2", "paper-table2"), ("ours", str(out / "fit"))):
         study[name] = run_study(
             "realizations",
             cfg,
@@ -122,7 +133,7 @@ def reproduce(
         "runtime_s": time.perf_counter() - t0,
     }
     write_json(out / "report.json", report)
-    (out / "REPORT.md").write_text(_markdown(report))
+    atomic_write(out / "REPORT.md", lambda p: p.write_text(_markdown(report)))
     log(f"done in {report['runtime_s']:.0f} s: {out / 'REPORT.md'}")
     return report
 
@@ -156,8 +167,7 @@ def _markdown(r: dict[str, Any]) -> str:
             lines.append(f"| {k} | {v['r2']:.3f} | {v['brier']:.4f} | {v['log_loss']:.4f} |")
     lines += [
         "",
-        "Figures: `dataset/fig2_surface.png`, `dataset/fit_quality.png`; "
-        "tables: `dataset/table2.md`, `dataset/table3.md`.",
+        "Figures: `fit/fig2_surface.png`, `fit/fit_quality.png`; tables: `fit/table2.md`, `fit/table3.md`.",
         "",
         f"## GBMU study ({s['realizations']} realisations, {s['iterations']} iterations, step 1)",
         "",

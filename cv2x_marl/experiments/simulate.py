@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 import cv2x_marl
 from cv2x_marl.config import ScenarioConfig, to_dict
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator
 
 
@@ -34,8 +35,18 @@ def simulate(
     n_subframes: int,
     out_dir: Path | None,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Reset, run and (when ``out_dir``) write ``links.parquet``, ``summary.json``, ``prr_vs_distance.png``."""
+    """Reset, run and (when ``out_dir``) write ``links.parquet``, ``summary.json``, ``prr_vs_distance.png``.
+
+    ``out_dir`` is a run folder (:class:`cv2x_marl.runs.RunFolder`): locked, refused when not
+    empty unless ``overwrite``, removed again if the run fails.
+    """
+    with run_folder(out_dir, "simulate", overwrite=overwrite, parameters={"seed": seed, "n_subframes": n_subframes}):
+        return _simulate(cfg, seed, n_subframes, out_dir, progress)
+
+
+def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | None, progress: bool) -> dict[str, Any]:
     from tqdm import tqdm
 
     t0 = time.perf_counter()

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cv2x_marl.io import write_json
+from cv2x_marl.io import strict, write_json
 
 FloatArray = NDArray[np.float64]
 SCHEMA_VERSION = 1
@@ -194,8 +194,9 @@ class TwoDistanceModel:
             raise ModelError(f"{source}: malformed model ({type(exc).__name__}: {exc})") from exc
 
     def save(self, path: str | Path) -> Path:
-        """Write the model as JSON (atomically)."""
-        return write_json(path, self.to_dict())
+        """Write the model as JSON (atomically), with the SHA-256 of its content (checked by :meth:`load`)."""
+        payload = strict(self.to_dict())
+        return write_json(path, {**payload, "sha256": _digest(payload)})
 
     @classmethod
     def load(cls, path: str | Path) -> TwoDistanceModel:
@@ -207,4 +208,19 @@ class TwoDistanceModel:
             raise ModelError(f"model file {path} does not exist") from exc
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ModelError(f"model file {path} is not valid JSON: {exc}") from exc
+        if isinstance(data, dict) and "sha256" in data:
+            payload = {k: v for k, v in data.items() if k != "sha256"}
+            if _digest(payload) != data["sha256"]:
+                raise ModelError(
+                    f"model file {path} does not match its SHA-256: the file was edited or corrupted; refit it"
+                )
+            data = payload
         return cls.from_dict(data, source=f"model file {path}")
+
+
+def _digest(payload: Any) -> str:
+    """SHA-256 of the canonical JSON of a model's content (sorted keys, no spaces)."""
+    import hashlib
+
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()

@@ -3,7 +3,9 @@
 A run folder holds ``train_config.json`` (the resolved configuration), ``checkpoints/``
 (``ppo_<steps>_steps.zip`` every ``checkpoint_every`` steps), ``tb/`` (tensorboard),
 ``eval.csv`` (the learning curve: PPO and GBMU on fixed evaluation episodes), ``model.zip`` and
-``record.json`` (timesteps, wall time, throughput, final evaluation) once training ends.
+``record.json`` (timesteps, wall time, throughput, final evaluation) once training ends, and
+``run.json`` (:mod:`cv2x_marl.runs`: status, arguments of every segment, file checksums). The
+final state, and the state at an interrupt, are also saved as checkpoints.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -69,16 +72,20 @@ class PpoConfig:
                 raise TrainError(f"ppo.{name} must be {allowed}, got {getattr(self, name)!r}")
             object.__setattr__(self, name, value)
         for name in ("n_steps", "batch_size", "n_epochs"):
-            _check_count(f"ppo.{name}", getattr(self, name))
+            object.__setattr__(self, name, _check_count(f"ppo.{name}", getattr(self, name)))
         arch = self.net_arch
         if not isinstance(arch, tuple | list) or not arch or not all(is_int(a) and a >= 1 for a in arch):
             raise TrainError(f"ppo.net_arch must be a non-empty list of integers >= 1, got {arch!r}")
         object.__setattr__(self, "net_arch", tuple(int(a) for a in arch))
 
 
-def _check_count(name: str, value: Any) -> None:
+def _check_count(name: str, value: Any) -> int:
+    """``value`` as an int >= 1; a whole float (YAML's ``1e4``) counts, ``1.5`` and bools do not."""
+    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+        value = int(value)
     if not is_int(value) or value < 1:
         raise TrainError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -100,7 +107,7 @@ class TrainConfig:
         if self.env_id not in ENV_IDS:
             raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
         for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
-            _check_count(f"train.{name}", getattr(self, name))
+            object.__setattr__(self, name, _check_count(f"train.{name}", getattr(self, name)))
         if not is_int(self.eval_seed) or self.eval_seed < 0:
             raise TrainError(f"train.eval_seed must be an integer >= 0, got {self.eval_seed!r}")
         if not isinstance(self.env, dict):
@@ -117,14 +124,13 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
 
     Unknown keys raise :class:`TrainError` naming them; CLI values override the file.
     """
-    import yaml
+    from cv2x_marl.yamlcore import YAMLError, load_path
 
     data: dict[str, Any] = {}
     if path is not None:
         try:
-            text = Path(path).read_text()
-            data = (json.loads(text) if Path(path).suffix == ".json" else yaml.safe_load(text)) or {}
-        except (OSError, json.JSONDecodeError, yaml.YAMLError) as exc:
+            data = load_path(path) or {}
+        except (OSError, ValueError, YAMLError) as exc:
             raise TrainError(f"cannot read training config {path}: {exc}") from exc
         if not isinstance(data, dict):
             raise TrainError(f"training config {path} must be a mapping")
@@ -201,7 +207,42 @@ def save_model(model: Any, path: Path) -> Path:
     return atomic_write(path, lambda tmp: model.save(tmp))
 
 
-def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool) -> list[Any]:
+class _StopRequest:
+    """SIGINT/SIGTERM during training: the first signal asks training to stop at the next step
+    (a checkpoint is then saved); a second one interrupts at once."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _StopRequest:
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():  # handlers only work there
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signum
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped on SIGINT/SIGTERM after saving a checkpoint (``--resume`` continues)."""
+
+
+def _callbacks(
+    cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool, stop: _StopRequest
+) -> list[Any]:
     from stable_baselines3.common.callbacks import BaseCallback
 
     from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
@@ -209,15 +250,13 @@ def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progres
     class Checkpoint(BaseCallback):
         """Atomic checkpoints every ``checkpoint_every`` steps (a crash never leaves a half file)."""
 
-        def __init__(self) -> None:
-            super().__init__()
+        def _on_training_start(self) -> None:  # after a resume restored num_timesteps
             self.next = (self.num_timesteps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
-                path = run_dir / "checkpoints" / f"ppo_{self.num_timesteps}_steps.zip"
-                save_model(self.model, path)
-                self.next += cfg.checkpoint_every
+                save_model(self.model, checkpoint_path(run_dir, self.num_timesteps))
+                self.next = (self.num_timesteps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
             return True
 
     class EvalVsGbmu(BaseCallback):
@@ -234,7 +273,8 @@ def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progres
         def _on_training_start(self) -> None:
             # GBMU acts with plain offsets, whatever action mode the learned mover trains with
             self.gbmu = self._eval("gbmu", {**cfg.env, "action_mode": "offset"})
-            self.next = self.num_timesteps
+            done = [int(r["timesteps"]) for r in read_eval_rows(run_dir / "eval.csv")]
+            self.next = max(done) + cfg.eval_every if done else self.num_timesteps
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
@@ -254,14 +294,12 @@ def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progres
                 for k, v in row.items():
                     if k != "timesteps":
                         self.logger.record(f"eval/{k}", v)
-                path = run_dir / "eval.csv"
-                new = not path.exists()
-                with path.open("a", newline="") as fh:
-                    w = csv.DictWriter(fh, fieldnames=list(row))
-                    if new:
-                        w.writeheader()
-                    w.writerow(row)
+                write_eval_rows(run_dir / "eval.csv", [*read_eval_rows(run_dir / "eval.csv"), row])
             return True
+
+    class StopOnSignal(BaseCallback):
+        def _on_step(self) -> bool:
+            return stop.signal is None  # False ends model.learn() cleanly
 
     class Progress(BaseCallback):
         def _on_training_start(self) -> None:
@@ -283,7 +321,35 @@ def _callbacks(cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progres
         def _on_training_end(self) -> None:
             self.bar.close()
 
-    return [Checkpoint(), EvalVsGbmu(), Progress()]
+    return [Checkpoint(), EvalVsGbmu(), StopOnSignal(), Progress()]
+
+
+def checkpoint_path(run_dir: Path, steps: int) -> Path:
+    """``run_dir/checkpoints/ppo_<steps>_steps.zip``."""
+    return Path(run_dir) / "checkpoints" / f"ppo_{int(steps)}_steps.zip"
+
+
+def read_eval_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a learning curve ``eval.csv`` (empty when there is none)."""
+    if not path.exists():
+        return []
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def write_eval_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Rewrite ``eval.csv`` atomically (a crash leaves the previous version, never a torn row)."""
+    if not rows:
+        path.unlink(missing_ok=True)
+        return
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+
+    atomic_write(path, write)
 
 
 def train(
@@ -293,20 +359,32 @@ def train(
     run_dir: Path,
     resume: bool = False,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Train (or resume) a shared PPO policy; write the run folder; return the training record."""
+    """Train (or resume) a shared PPO policy; write the run folder; return the training record.
+
+    The run folder (:class:`cv2x_marl.runs.RunFolder`) is locked while training and keeps its
+    checkpoints if training fails. SIGINT/SIGTERM stop training at the next step, save a
+    checkpoint and raise :class:`TrainingInterrupted` (``resume=True`` continues). With
+    ``resume`` training continues from the newest checkpoint, and ``eval.csv`` is cut back to it.
+
+    Raises:
+        TrainError: bad arguments, a resume whose configuration differs, or a run that already
+            has ``timesteps`` steps.
+        cv2x_marl.runs.RunFolderError: the folder is in use, not empty (without ``overwrite`` or
+            ``resume``) or not writable.
+    """
     from cv2x_marl.extras import require
+    from cv2x_marl.runs import RunFolder
 
-    torch = require("torch", "cv2x-marl train")
-    PPO = require("stable_baselines3", "cv2x-marl train").PPO
-
-    if timesteps < 1:
-        raise TrainError(f"--timesteps must be >= 1, got {timesteps}")
+    require("torch", "cv2x-marl train")
+    require("stable_baselines3", "cv2x-marl train")
+    if not is_int(timesteps) or timesteps < 1:
+        raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    cfg_path = run_dir / "train_config.json"
     resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
     if resume:
+        cfg_path = run_dir / "train_config.json"
         if not cfg_path.exists():
             raise TrainError(f"--resume: {run_dir} has no train_config.json (nothing to resume)")
         old = json.loads(cfg_path.read_text())
@@ -314,28 +392,61 @@ def train(
             k: v for k, v in resolved.items() if k != "timesteps"
         }:
             raise TrainError(f"--resume: the configuration or seed differs from the one in {cfg_path}")
-    elif latest_checkpoint(run_dir) is not None or (run_dir / "model.zip").exists():
-        raise TrainError(f"{run_dir} already holds a run; use --resume or another --out")
-    write_json(cfg_path, resolved)
+        ckpt = latest_checkpoint(run_dir)
+        done = int(ckpt.stem.split("_")[1]) if ckpt is not None else 0
+        if done >= timesteps:
+            raise TrainError(
+                f"--resume: {run_dir} already has {done} steps (>= --timesteps {timesteps}); "
+                "ask for more steps to continue it (its model.zip is kept as it is)"
+            )
+    params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps}
+    with RunFolder(run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params):
+        return _train(cfg, timesteps, seed, run_dir, resolved, resume, progress)
+
+
+def _train(
+    cfg: TrainConfig,
+    timesteps: int,
+    seed: int,
+    run_dir: Path,
+    resolved: dict[str, Any],
+    resume: bool,
+    progress: bool,
+) -> dict[str, Any]:
+    import torch
+    from stable_baselines3 import PPO
+
+    write_json(run_dir / "train_config.json", resolved)
     vec = make_vec_env(cfg)
     torch.set_num_threads(1)
     ckpt = latest_checkpoint(run_dir) if resume else None
     if ckpt is not None:
         model = PPO.load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
         model.set_random_seed(seed + model.num_timesteps)
+        # the learning curve goes back to the checkpoint: rows of a discarded segment are dropped
+        rows = read_eval_rows(run_dir / "eval.csv")
+        write_eval_rows(run_dir / "eval.csv", [r for r in rows if int(r["timesteps"]) <= model.num_timesteps])
     else:
         model = make_ppo(vec, cfg.ppo, seed, str(run_dir / "tb"))
     start = model.num_timesteps
     remaining = max(0, timesteps - start)
     t0 = time.perf_counter()
-    if remaining:
+    with _StopRequest() as stop:
         model.learn(
             remaining,
-            callback=_callbacks(cfg, run_dir, vec.num_envs, timesteps, progress),
+            callback=_callbacks(cfg, run_dir, vec.num_envs, timesteps, progress, stop),
             reset_num_timesteps=ckpt is None,
             tb_log_name="ppo",
         )
-    wall = time.perf_counter() - t0
+        wall = time.perf_counter() - t0
+        # the final state is a checkpoint too: short runs and interrupted runs can be resumed
+        save_model(model, checkpoint_path(run_dir, model.num_timesteps))
+        if stop.signal is not None:
+            vec.close()
+            raise TrainingInterrupted(
+                f"training stopped at {model.num_timesteps} steps; checkpoint saved in {run_dir / 'checkpoints'} "
+                "(continue with --resume)"
+            )
     save_model(model, run_dir / "model.zip")
     from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
 

@@ -11,6 +11,7 @@ from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate, make_eval_env
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.train import PpoConfig, TrainConfig, latest_checkpoint, load_train_config, parameters_digest, train
 from cv2x_marl.rl.vec_env import AgentsVecEnv
+from cv2x_marl.runs import RunFolderError
 
 FAST_ENV = {"max_cycles": 5, "normalise_reward": True, "overrides": ["sim.warmup_subframes=200"]}
 TINY = TrainConfig(
@@ -120,7 +121,7 @@ def test_resume_continues_the_step_count(tmp_path: Path) -> None:
     assert first["timesteps"] == 128
     ckpt = latest_checkpoint(run)
     assert ckpt is not None and ckpt.name == "ppo_128_steps.zip"
-    with pytest.raises(TrainError, match="already holds a run"):
+    with pytest.raises(RunFolderError, match=r"not empty.*--overwrite"):
         train(TINY, 256, seed=1, run_dir=run, progress=False)
     second = train(TINY, 256, seed=1, run_dir=run, resume=True, progress=False)
     assert second["resumed_from"] == 128 and second["timesteps"] == 256
