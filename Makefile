@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 run: install
-	$(BIN)/cv2x-marl reproduce --quick --out results
+	$(BIN)/cv2x-marl reproduce --quick --out results --overwrite
 
 lint: install
 	$(BIN)/ruff check cv2x_marl tests benchmarks examples

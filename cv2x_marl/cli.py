@@ -105,6 +105,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     n = args.subframes if args.subframes is not None else cfg.sim.n_subframes
     if n < 1:
         raise ConfigError(f"--subframes must be >= 1, got {n}")
+    if n != cfg.sim.n_subframes:  # the memory check (and run.json's config) see the run's real length
+        cfg = apply_overrides(cfg, [f"sim.n_subframes={n}"])
     summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet, overwrite=args.overwrite)
     if args.json:
         _print_json(summary)

@@ -539,7 +539,10 @@ def config_markdown() -> str:
         "",
         "Generated from the field metadata in `cv2x_marl/config.py` by `cv2x-marl config --markdown`;",
         "`tests/test_config.py` fails when this file is stale. Set keys with `--set section.key=value`",
-        "or a YAML/JSON file of sections (`--config FILE`, optional top-level `preset: NAME`).",
+        "or a YAML/JSON file of sections (`--config FILE`, optional top-level `preset: NAME`). Values",
+        "follow the YAML 1.2 core schema (`5.9e9` is a number, `010` is 10, `1:40` and `yes` are strings;",
+        "`cv2x_marl/yamlcore.py`). A scenario has at most 100,000 vehicles, counted after",
+        "`vehicles.density_veh_per_m` x road length.",
         "Defaults are the `paper` preset (Table 1 of the paper); the `highway` preset overrides:",
         "",
     ]

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.rng import RngStreams
 from cv2x_marl.sim import channel, link, mobility, sps
+from cv2x_marl.sim.memory import check_memory
 from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
 from cv2x_marl.sim.road import Road
 from cv2x_marl.units import db_to_linear, noise_power_dbm
@@ -146,6 +147,7 @@ class Simulator:
         self.curve = link.load_per_curve(config.link.per_curve)
         self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
+        check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         iu, ju = np.triu_indices(self.n, 1)
         self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
         self._ready = False
