@@ -29,10 +29,10 @@ def main() -> None:
         rows["samples"] = manifest["rows"]
         for kind in ("linear", "logistic"):
             t1 = time.perf_counter()
-            run_fit(data, Path(tmp) / f"{kind}.json", kind=kind, figures=False)
+            run_fit(data, Path(tmp) / f"fit-{kind}", kind=kind, figures=False)
             rows[f"fit_{kind}_s"] = time.perf_counter() - t1
         t2 = time.perf_counter()
-        run_fit(data, Path(tmp) / "fig.json", kind="linear", figures=True)
+        run_fit(data, Path(tmp) / "fit-figures", kind="linear", figures=True)
         rows["fit_linear_with_figures_s"] = time.perf_counter() - t2
     rows["dataset_plus_linear_fit_s"] = rows["dataset_s"] + rows["fit_linear_s"]
     for k, v in rows.items():
