@@ -132,7 +132,15 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     if args.subframes is not None:
         cfg = apply_overrides(cfg, [f"sim.n_subframes={args.subframes}"])
     manifest = build_dataset(
-        cfg, args.runs, args.seed, args.out, args.aggregate_window_ms, progress=not args.quiet, overwrite=args.overwrite
+        cfg,
+        args.runs,
+        args.seed,
+        args.out,
+        args.aggregate_window_ms,
+        progress=not args.quiet,
+        overwrite=args.overwrite,
+        ray=args.ray or args.address is not None,
+        address=args.address,
     )
     if args.json:
         _print_json({k: v for k, v in manifest.items() if k != "config"})
@@ -271,6 +279,41 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from cv2x_marl.rl.sweep import parse_grid, run_sweep
+    from cv2x_marl.rl.train import load_train_config
+
+    cfg = load_train_config(args.config, env_id=args.env)
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        raise TrainError(f"--seeds expects integers separated by commas, got {args.seeds!r}") from None
+    if any(s < 0 for s in seeds):
+        raise TrainError(f"--seeds must be integers >= 0, got {args.seeds!r}")
+    result = run_sweep(
+        cfg,
+        seeds,
+        parse_grid(args.grid or []),
+        args.timesteps,
+        args.out,
+        address=args.address,
+        eval_episodes=args.eval_episodes,
+        eval_seed=args.eval_seed,
+        vs_optimum=args.vs_optimum,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
+    if args.json:
+        _print_json(result)
+    else:
+        for p in result["points"]:
+            sd = "" if p["std_utility_gain"] is None else f" +- {p['std_utility_gain']:.1%}"
+            gain = "failed" if p["mean_utility_gain"] is None else f"{p['mean_utility_gain']:+.1%}{sd}"
+            print(f"{p['label']}: held-out utility gain {gain} over {p['trials']} seed(s)")
+        print(f"wrote {args.out / 'trials.csv'}, results.json, sweep.png and trials/ ({result['wall_s']:.0f} s)")
+    return 0
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments.reproduce import reproduce
 
@@ -335,6 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="aggregate per (run, link, window, NSV) into an empirical reception rate (0: per transmission)",
     )
     p.add_argument("--out", type=Path, required=True, help="dataset folder")
+    p.add_argument("--ray", action="store_true", help="run the runs as Ray tasks (a local Ray; the [ray] extra)")
+    p.add_argument("--address", help="with --ray: the Ray cluster to use (auto, ray://HOST:10001)")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true", help="print the manifest as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -437,6 +482,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("sweep", help="PPO training sweep over seeds and a grid, as Ray Tune trials")
+    p.add_argument("--config", type=Path, help="training config (as for train) the grid modifies")
+    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS), help="env id (default: the config's)")
+    p.add_argument("--seeds", default="0", help="training seeds, comma-separated (default: 0)")
+    p.add_argument(
+        "--grid",
+        action="append",
+        metavar="KEY=V1,V2",
+        help="a training-config key and its values, e.g. ppo.learning_rate=1e-4,3e-4 or env.replan_every=25,50 "
+        "(repeatable: the trials are seeds x every combination)",
+    )
+    p.add_argument("--timesteps", type=COUNT, default=50_000, help="agent-steps per trial")
+    p.add_argument("--eval-episodes", type=COUNT, default=48, help="held-out episodes per trial")
+    p.add_argument("--eval-seed", type=SEED, default=2026, help="seed of the held-out episodes")
+    p.add_argument("--vs-optimum", action="store_true", help="also report each trial's share of the optimum")
+    p.add_argument("--address", help="Ray cluster address (auto, ray://HOST:10001); default: a local Ray")
+    p.add_argument("--out", type=Path, required=True, help="sweep folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument("--json", action="store_true", help='print {"trials": [...], "points": [...]} as JSON')
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("reproduce", help="dataset, fit, GBMU study, movers vs baselines, REPORT.md")
     p.add_argument("--out", type=Path, default=Path("results"))

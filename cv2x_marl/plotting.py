@@ -227,3 +227,29 @@ def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | 
     ax.legend(fontsize=7)
     ax.set_title(title)
     return _save(fig, path)
+
+
+def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
+    """Held-out utility gain per grid point of a sweep: mean +- std bar, one dot per training seed."""
+    points = result["points"]
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(points) + 2.5), 4.0), constrained_layout=True)
+    for i, p in enumerate(points):
+        gains = [
+            100 * t["mean_utility_gain"]
+            for t in result["trials"]
+            if t["config"] == p["config"] and t["status"] == "TERMINATED"
+        ]
+        if gains:
+            sd = 100 * (p["std_utility_gain"] or 0.0)
+            ax.bar(i, 100 * p["mean_utility_gain"], yerr=sd, color="#4e79a7", alpha=0.6, capsize=4)
+            ax.plot([i] * len(gains), gains, "ko", ms=4)
+    ax.set_xticks(range(len(points)), [p["label"] for p in points], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("held-out mean utility gain (%)")
+    ax.set_title(
+        f"sweep: {len(result['seeds'])} seed(s) x {len(points)} point(s), {result['timesteps']} steps, "
+        f"{result['eval_episodes']} episodes (seed {result['eval_seed']})",
+        fontsize=9,
+    )
+    ax.axhline(0, color="k", lw=0.8)
+    ax.grid(axis="y", alpha=0.3)
+    return _save(fig, path)

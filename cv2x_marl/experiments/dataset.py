@@ -72,6 +72,8 @@ def build_dataset(
     aggregate_window_ms: int = 0,
     progress: bool = True,
     overwrite: bool = False,
+    ray: bool = False,
+    address: str | None = None,
 ) -> dict[str, Any]:
     """Run ``runs`` independent stage-1 simulations and write their link samples.
 
@@ -79,7 +81,9 @@ def build_dataset(
     with ``d_m``, ``l_m``, ``nsv``, ``p_success``, ``outcome`` (per transmission), or, with
     ``aggregate_window_ms > 0``, per (run, link, window, NSV) means with the empirical ``rate``.
     ``out_dir`` is a run folder (:class:`cv2x_marl.runs.RunFolder`); the manifest records the
-    SHA-256 of ``samples.parquet``, checked by :func:`load_dataset`.
+    SHA-256 of ``samples.parquet``, checked by :func:`load_dataset`. With ``ray`` the runs are
+    Ray tasks (:func:`cv2x_marl.parallel.map_on_ray`; a local Ray, or the cluster at ``address``):
+    the same samples, in the same order, as the serial loop.
     """
     if runs < 1:
         raise DatasetError(f"--runs must be >= 1, got {runs}")
@@ -89,38 +93,52 @@ def build_dataset(
         raise DatasetError("metrics.record_links=false leaves no link samples; set it to true")
     params = {"runs": runs, "seed": seed, "aggregate_window_ms": aggregate_window_ms}
     with RunFolder(out_dir, "dataset", overwrite=overwrite, parameters=params):
-        return _build_dataset(cfg, runs, seed, Path(out_dir), aggregate_window_ms, progress)
+        return _build_dataset(cfg, runs, seed, Path(out_dir), aggregate_window_ms, progress, ray, address)
+
+
+def _one_run(cfg: ScenarioConfig, run_id: int, run_seed: int) -> dict[str, np.ndarray]:
+    """The link samples of one stage-1 run (a Ray task with ``--ray``)."""
+    sim = Simulator(cfg)
+    sim.reset(run_seed)
+    links = sim.run(cfg.sim.n_subframes).links
+    assert links is not None
+    target = links["cause"] != CAUSE_CODE["half_duplex"]
+    return {
+        "run": np.full(int(target.sum()), run_id, dtype=np.int32),
+        "tx": links["tx"][target],
+        "rx": links["rx"][target],
+        "subframe": links["subframe"][target],
+        "d_m": links["distance_m"][target],
+        "l_m": links["interferer_distance_m"][target],
+        "nsv": links["nsv"][target],
+        "p_success": links["p_success"][target],
+        "outcome": links["outcome"][target],
+        "sinr_db": links["sinr_db"][target],
+    }
 
 
 def _build_dataset(
-    cfg: ScenarioConfig, runs: int, seed: int, out_dir: Path, aggregate_window_ms: int, progress: bool
+    cfg: ScenarioConfig,
+    runs: int,
+    seed: int,
+    out_dir: Path,
+    aggregate_window_ms: int,
+    progress: bool,
+    ray: bool,
+    address: str | None,
 ) -> dict[str, Any]:
     from tqdm import tqdm
 
     t0 = time.perf_counter()
     seeds = derive_seeds(seed, runs)
-    parts: list[dict[str, np.ndarray]] = []
     n_vehicles = cfg.n_vehicles
-    for run_id, run_seed in enumerate(tqdm(seeds, desc="dataset", unit="run", file=sys.stderr, disable=not progress)):
-        sim = Simulator(cfg)
-        sim.reset(run_seed)
-        links = sim.run(cfg.sim.n_subframes).links
-        assert links is not None
-        target = links["cause"] != CAUSE_CODE["half_duplex"]
-        parts.append(
-            {
-                "run": np.full(int(target.sum()), run_id, dtype=np.int32),
-                "tx": links["tx"][target],
-                "rx": links["rx"][target],
-                "subframe": links["subframe"][target],
-                "d_m": links["distance_m"][target],
-                "l_m": links["interferer_distance_m"][target],
-                "nsv": links["nsv"][target],
-                "p_success": links["p_success"][target],
-                "outcome": links["outcome"][target],
-                "sinr_db": links["sinr_db"][target],
-            }
-        )
+    if ray:
+        from cv2x_marl.parallel import map_on_ray
+
+        parts = map_on_ray(_one_run, [(cfg, i, s) for i, s in enumerate(seeds)], address)
+    else:
+        bar = tqdm(seeds, desc="dataset", unit="run", file=sys.stderr, disable=not progress)
+        parts = [_one_run(cfg, run_id, run_seed) for run_id, run_seed in enumerate(bar)]
     cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     if aggregate_window_ms:
         cols = _aggregate(cols, aggregate_window_ms, n_vehicles)
