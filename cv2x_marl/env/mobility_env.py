@@ -656,7 +656,18 @@ class MobilityEnv(ParallelEnv):
         )
         return np.clip(s, -self.layout.obs_clip, self.layout.obs_clip).astype(np.float32)
 
-    def render(self) -> NDArray[np.uint8] | None:
+    def render(self, mode: str | None = None) -> NDArray[np.uint8] | None:
+        """Draw the scene (``rgb_array``: an H x W x 3 uint8 image; ``human``: a window).
+
+        Args:
+            mode: accepted for wrappers that pass the mode again (RLlib's ``ParallelPettingZooEnv``
+                calls ``render(self.render_mode)``); it must be None or the env's ``render_mode``.
+        """
+        if mode is not None and mode != self.render_mode:
+            raise ValueError(
+                f"invalid render mode {mode!r}: this env was made with render_mode={self.render_mode!r}; "
+                "pass render_mode to the constructor"
+            )
         if self.render_mode is None:
             return None
         if not hasattr(self, "positions_m"):
