@@ -3,7 +3,7 @@
 The base install (``pip install cv2x_marl``) is the simulator and the envs (numpy, numba, scipy,
 gymnasium, pettingzoo, ...). Training and loading learned movers need the ``train`` extra (torch,
 stable-baselines3, tensorboard); sweeps and ``dataset --ray`` need the ``ray`` extra (Ray Tune and
-RLlib); ``make install`` installs every extra under ``constraints.txt``.
+RLlib); the TorchRL example the ``torchrl`` extra; ``make install`` installs every extra under ``constraints.txt``.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import importlib
 from types import ModuleType
 
 #: the extra that provides each optional top-level module
-EXTRA_OF = {"torch": "train", "stable_baselines3": "train", "tensorboard": "train", "pandas": "train", "ray": "ray"}
+EXTRA_OF = {"torch": "train", "stable_baselines3": "train", "tensorboard": "train", "pandas": "train", "ray": "ray", "torchrl": "torchrl"}
 
 
 class MissingExtraError(ImportError):

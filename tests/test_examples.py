@@ -21,6 +21,10 @@ ROOT = Path(__file__).resolve().parent.parent
             "rllib_ppo.py",
             ["iteration 1: mean episode return", "RLlib PPO  utility gain", "GBMU       utility gain +11.3%"],
         ),
+        (
+            "torchrl_mappo.py",
+            ["iteration 1: mean step reward", "TorchRL MAPPO  utility gain", "GBMU           utility gain +11.3%"],
+        ),
     ],
 )
 def test_example_quick_mode(script: str, expect: list[str]) -> None:
