@@ -210,9 +210,12 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
     else:
         print(f"case {args.case}, {summary['n_realizations']} realisation(s), model {model.kind}")
         for name, m in summary["methods"].items():
+            share = m.get("share_of_optimum")
+            share_txt = "" if share is None else f", {share:.1%} of the optimum's gain"
             print(
                 f"{name:>7}: effectiveness {m['effectiveness']:.1%}, utility gain {m['mean_utility_gain']:+.1%}, "
                 f"PRR gain {m['mean_prr_gain']:+.1%}, PRR drops {m['n_prr_drop']}, moved {m['mean_moved_m']:.1f} m"
+                + share_txt
             )
         if args.out:
             print(f"wrote {args.out}/summary.json, realizations.csv and figures")
@@ -414,7 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("paper-table2"),
         help="fit folder or model.json (from `cv2x-marl fit`), or paper-table2 (default)",
     )
-    p.add_argument("--methods", default="gbmu,greedy,oracle", help="comma-separated: gbmu, greedy, oracle")
+    p.add_argument(
+        "--methods",
+        default="gbmu,greedy,oracle,optimum",
+        help="comma-separated: gbmu, greedy, oracle, optimum (the best reachable position under the truth)",
+    )
     p.add_argument(
         "--truth-los",
         default="snapshot",

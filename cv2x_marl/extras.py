@@ -12,7 +12,14 @@ import importlib
 from types import ModuleType
 
 #: the extra that provides each optional top-level module
-EXTRA_OF = {"torch": "train", "stable_baselines3": "train", "tensorboard": "train", "pandas": "train", "ray": "ray", "torchrl": "torchrl"}
+EXTRA_OF = {
+    "torch": "train",
+    "stable_baselines3": "train",
+    "tensorboard": "train",
+    "pandas": "train",
+    "ray": "ray",
+    "torchrl": "torchrl",
+}
 
 
 class MissingExtraError(ImportError):

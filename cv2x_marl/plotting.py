@@ -109,7 +109,12 @@ def plot_fit_quality(model: Any, path: str | Path) -> Path:
     return _save(fig, path)
 
 
-METHOD_STYLE = {"gbmu": ("#e15759", "GBMU"), "greedy": ("#4e79a7", "greedy (eq. 9)"), "oracle": ("#59a14f", "oracle")}
+METHOD_STYLE = {
+    "gbmu": ("#e15759", "GBMU"),
+    "greedy": ("#4e79a7", "greedy (eq. 9)"),
+    "oracle": ("#59a14f", "oracle"),
+    "optimum": ("#7f7f7f", "optimum (best reachable)"),
+}
 
 
 def plot_trajectories(

@@ -29,7 +29,7 @@ from cv2x_marl.sim.evaluate import MoverLinks
 from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, utility_log
 
 CASES = ("seven-node", "snapshot", "realizations")
-METHODS = ("gbmu", "greedy", "oracle")
+METHODS = ("gbmu", "greedy", "oracle", "optimum")
 
 # The illustrative network of Fig. 3: transmitter UE0, receivers UE1-UE3 in three directions with
 # d03 > d01 > d02, interferers I4-I6 on UE0's resource with l2 > l1 > l3 (metres).
@@ -125,12 +125,15 @@ def run_methods(
     p_min = model.p_min
     out: dict[str, MethodRun] = {}
     for name in methods:
-        if name == "oracle":
-            direction = oracle_direction(links.success, links.target, p_min, oracle_h_m)
+        if name == "optimum":
+            res = optimum_climb(links, p_min, delta * iterations, iterations, progress)
         else:
-            direction = gbmu_direction(inputs, model, fairness=name == "gbmu")
-        with tqdm(total=iterations, desc=name, unit="it", file=sys.stderr, disable=not progress) as bar:
-            res = climb(links.start_m, direction, delta, th_pos_m, iterations, record_every, progress=bar.update)
+            if name == "oracle":
+                direction = oracle_direction(links.success, links.target, p_min, oracle_h_m)
+            else:
+                direction = gbmu_direction(inputs, model, fairness=name == "gbmu")
+            with tqdm(total=iterations, desc=name, unit="it", file=sys.stderr, disable=not progress) as bar:
+                res = climb(links.start_m, direction, delta, th_pos_m, iterations, record_every, progress=bar.update)
         p0 = links.success(links.start_m)
         pf = links.success(res.final_m)
         curve = np.array([utility_log(links.success(pos), links.target, p_min) for pos in res.trajectory_m])
@@ -145,6 +148,57 @@ def run_methods(
             curve,
         )
     return out
+
+
+class _SnapshotRow:
+    """The mover of snapshot ``b`` as a :class:`~cv2x_marl.sim.evaluate.MoverRow`-like object for
+    :func:`~cv2x_marl.policies.optimum.best_reachable`: the study's own truth utility of M positions."""
+
+    def __init__(self, links: MoverLinks, b: int) -> None:
+        self.links, self.b = links, b
+
+    def utility(self, positions_m: NDArray[np.float64], p_min: float) -> NDArray[np.float64]:
+        view = self.links.take(np.full(positions_m.shape[0], self.b, dtype=np.int64))
+        return utility_log(view.success(positions_m), view.target, p_min)
+
+
+def optimum_climb(
+    links: MoverLinks,
+    p_min: float,
+    reach_m: float,
+    iterations: int,
+    progress: bool = False,
+    grid_m: float = 5.0,
+    refine: int = 8,
+) -> ClimbResult:
+    """The ``optimum`` method: each mover's best position under the study's truth utility.
+
+    The search (:func:`~cv2x_marl.policies.optimum.best_reachable`: a ``grid_m`` grid, the
+    ``refine`` best points refined twice to a hundredth of the pitch) covers what the climbing
+    methods can reach: the disc of radius ``reach_m`` (iteration cap x step) around the start,
+    within the road's box. With the LOS states of the mover's links fixed (``truth_los`` snapshot
+    or always) nothing outside the box can be better: projecting a position onto the box shortens
+    every link to a receiver in it. Returned as a :class:`ClimbResult` that jumps to the optimum at
+    iteration 1 and stays there, so its curve is the level the climbers are measured against.
+    """
+    from tqdm import tqdm
+
+    from cv2x_marl.policies.optimum import ReachableSet, best_reachable
+
+    box = np.asarray(links.road.box_m, dtype=np.float64)
+    start = links.start_m
+    final = start.copy()
+    for b in tqdm(range(start.shape[0]), desc="optimum", unit="snap", file=sys.stderr, disable=not progress):
+        reach = ReachableSet(start[b], reach_m, reach_m, box)
+        final[b], _ = best_reachable(_SnapshotRow(links, b), reach, p_min, grid_m=grid_m, refine=refine)  # type: ignore[arg-type]
+    n = start.shape[0]
+    return ClimbResult(
+        final,
+        np.ones(n, dtype=np.int64),
+        np.ones(n, dtype=bool),
+        np.stack([start, final, final]),
+        np.array([0, 1, max(iterations, 1)]),
+    )
 
 
 def summarize(runs: dict[str, MethodRun]) -> dict[str, Any]:
@@ -169,6 +223,13 @@ def summarize(runs: dict[str, MethodRun]) -> dict[str, Any]:
             "share_converged": float(np.mean(r.climb.converged)),
             "n_realizations": int(ug.shape[0]),
         }
+    if "optimum" in runs:  # every method against the best reachable position, on the same snapshots
+        best = methods["optimum"]["mean_utility_gain"]
+        u_opt = runs["optimum"].u_final
+        for name, r in runs.items():
+            m = methods[name]
+            m["share_of_optimum"] = m["mean_utility_gain"] / best if best else None
+            m["n_beats_optimum"] = int(np.sum(r.u_final > u_opt + 1e-9 * np.abs(u_opt)))
     top: dict[str, Any] = dict(methods.get("gbmu", next(iter(methods.values()))))
     top["methods"] = methods
     return top

@@ -171,14 +171,16 @@ def _markdown(r: dict[str, Any]) -> str:
         "",
         f"## GBMU study ({s['realizations']} realisations, {s['iterations']} iterations, step 1)",
         "",
-        "| model | method | effectiveness | mean utility gain | mean PRR gain | PRR drops |",
-        "|---|---|---:|---:|---:|---:|",
+        "| model | method | effectiveness | mean utility gain | share of the optimum's gain | mean PRR gain "
+        "| PRR drops |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for model, methods in r["gbmu_study"].items():
         for m, v in methods.items():
+            share = v.get("share_of_optimum")
             lines.append(
                 f"| {model} | {m} | {v['effectiveness']:.1%} | {_pct(v['mean_utility_gain'])} | "
-                f"{_pct(v['mean_prr_gain'])} | {v['n_prr_drop']} |"
+                f"{'-' if share is None else f'{share:.0%}'} | {_pct(v['mean_prr_gain'])} | {v['n_prr_drop']} |"
             )
     lines += ["", "Paper (Fig. 9-10): 93 %, +15 %, +5 %, 40 of 144. Figures: `gbmu-*/fig9_fig10_gains.png`."]
     for kind, rows in r["movers"].items():

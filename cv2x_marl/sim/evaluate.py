@@ -146,6 +146,23 @@ class MoverLinks:
         start = rx_pos[np.arange(b), np.asarray(movers)]
         return cls(config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los)
 
+    def take(self, index: NDArray[np.int64]) -> MoverLinks:
+        """The mover links of snapshots ``index`` [M] (repeats allowed: M copies of one snapshot
+        evaluate M candidate positions of its mover in one :meth:`success` call)."""
+        return MoverLinks(
+            self.config,
+            self.road,
+            self.rx_pos_m[index],
+            self.target[index],
+            self.los[index],
+            self.shadow_db[index],
+            self.interference_mw[index],
+            self.interferer_mw[index],
+            self.start_m[index],
+            self.mover[index],
+            self.truth_los,
+        )
+
     def _los_at(self, pos_m: FloatArray) -> NDArray[np.bool_]:
         if self.truth_los == "snapshot":
             return self.los
