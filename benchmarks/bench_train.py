@@ -8,7 +8,10 @@ same machine state (goal of issue 10: ours >= 0.7x Pendulum). Ours goes through 
 Pendulum through SB3's ``DummyVecEnv``. Also timed alone: the env part of ours (random actions
 through the same VecEnv, resets included). Best of ``--repeats``. Writes ``results/bench_train.json``.
 
-    python benchmarks/bench_train.py [--timesteps 32768] [--repeats 2] [--env cv2x/SingleMover-v2]
+    python benchmarks/bench_train.py [--timesteps 32768] [--repeats 2] [--env cv2x/SingleMover-v2] [--start-pool N]
+
+With ``--start-pool N`` our training episodes start from N episode seeds whose starts are cached
+(``TrainConfig.start_pool``); each timed run starts with an empty cache, so it pays for the pool.
 """
 
 from __future__ import annotations
@@ -30,8 +33,10 @@ from cv2x_marl.io import write_json  # noqa: E402
 
 
 def ppo_steps_per_s(vec: Any, cfg: Any, timesteps: int, seed: int) -> float:
+    from cv2x_marl.env.mobility_env import _START_CACHE
     from cv2x_marl.rl.train import make_ppo
 
+    _START_CACHE.clear()  # every timed run pays for its own start pool (with --start-pool)
     model = make_ppo(vec, cfg.ppo, seed)
     t0 = time.perf_counter()
     model.learn(timesteps)
@@ -62,9 +67,14 @@ def main() -> None:
     ap.add_argument("--env", default=None, help="override the config's env id")
     ap.add_argument("--timesteps", type=int, default=32_768)
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--start-pool", type=int, default=None, help="train from N cached episode starts")
     args = ap.parse_args()
     torch.set_num_threads(1)
     cfg = load_train_config(Path(args.config), env_id=args.env)
+    if args.start_pool is not None:
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, start_pool=args.start_pool)
     ours = make_ours(cfg)
     ours.seed(0)
     pend = make_vec_env("Pendulum-v1", n_envs=cfg.copies, seed=0)
@@ -72,6 +82,7 @@ def main() -> None:
         "env_id": cfg.env_id,
         "config": args.config,
         "copies": cfg.copies,
+        "start_pool": cfg.start_pool,
         "timesteps": args.timesteps,
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs",
         "gymnasium": gymnasium.__version__,
@@ -83,7 +94,8 @@ def main() -> None:
     rows["ratio_ours_to_pendulum"] = rows["ours_ppo_steps_per_s"] / rows["pendulum_ppo_steps_per_s"]
     for k, v in rows.items():
         print(f"{k}: {v:,.2f}" if isinstance(v, float) else f"{k}: {v}")
-    write_json(Path("results/bench_train.json"), rows)
+    suffix = "" if cfg.start_pool is None else f"_pool{cfg.start_pool}"
+    write_json(Path(f"results/bench_train{suffix}.json"), rows)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,9 @@ outcomes in ``traffic`` mode), never with the regression model.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -115,6 +117,7 @@ class MobilityEnv(ParallelEnv):
         model: str = "paper-table2",
         action_mode: str = "offset",
         replan_every: int | None = None,
+        reset_cache: int = 0,
     ) -> None:
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
@@ -228,6 +231,10 @@ class MobilityEnv(ParallelEnv):
                 self.model = load_model(Path(model))
             except Exception as exc:
                 raise ValueError(f"invalid env argument model={model!r}: {exc}") from exc
+        _check("reset_cache", is_int(reset_cache) and reset_cache >= 0, "an integer >= 0", reset_cache)
+        _check("reset_cache", reset_cache == 0 or mode == "snapshot", "0 unless mode is snapshot", reset_cache)
+        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
+        self.reset_cache = int(reset_cache)
         self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
@@ -259,14 +266,18 @@ class MobilityEnv(ParallelEnv):
                 self._np_random = np.random.default_rng()
             episode_seed = int(self._np_random.integers(0, 2**31 - 1))
         self.seed_used = episode_seed
-        self.sim = Simulator(self.config)
-        snap = self.sim.reset(self.seed_used)
+        cached = _cached_start(self, episode_seed) if self.reset_cache else None
+        if cached is None:
+            self.sim = Simulator(self.config)
+            snap = self.sim.reset(self.seed_used)
+            if self.mode == "snapshot":
+                self.links = SnapshotLinks(self.config, snap, self.truth_los)
+        else:
+            self.sim, snap, self.links = cached.sim, cached.snapshot, cached.links
         self.snapshot = snap
         self.start_m = snap.positions_m.copy()
         self.positions_m = snap.positions_m.copy()
         self.resource = snap.slot * snap.n_subchannels + snap.subchannel
-        if self.mode == "snapshot":
-            self.links = SnapshotLinks(self.config, snap, self.truth_los)
         self.offsets_m = np.zeros((self.n, 2))
         self._mover_row: Any = None
         self._co_resource = self.resource.copy()
@@ -281,7 +292,9 @@ class MobilityEnv(ParallelEnv):
         self.prr0 = self.prr.copy()
         self._base_prev = self._rewards(self.u).copy()
         if self.layout.version >= 1:
-            self._reset_v1_state()
+            self._reset_v1_state(None if cached is None else cached.plan_m)
+        if self.reset_cache and cached is None:
+            _store_start(self, episode_seed)
         obs = self._observations()
         infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
         return obs, infos
@@ -518,7 +531,7 @@ class MobilityEnv(ParallelEnv):
         """Utilities per target receiver (the scale of the v1 observation), whatever ``normalise_reward``."""
         return u.copy() if self.normalise_reward else u / np.maximum(self.target.sum(axis=1), 1)
 
-    def _reset_v1_state(self) -> None:
+    def _reset_v1_state(self, cached_plan_m: NDArray[np.float64] | None = None) -> None:
         from cv2x_marl.policies.optimum import model_plan, reachable_set, sensing_plan
         from cv2x_marl.policies.scripted import decode_observations
 
@@ -529,7 +542,9 @@ class MobilityEnv(ParallelEnv):
         self._best_m = self.positions_m.copy()
         self.plan_m = self.positions_m.copy()
         movers = np.flatnonzero(self.mover_mask)
-        if self.mode == "snapshot" and movers.size and self.layout.version >= 2:
+        if cached_plan_m is not None:  # the start came from the reset cache, with its plan
+            self.plan_m = cached_plan_m.copy()
+        elif self.mode == "snapshot" and movers.size and self.layout.version >= 2:
             self.plan_m[movers] = sensing_plan(self, movers)
         elif self.mode == "snapshot" and movers.size:
             v0 = self._build(movers)[:, : self.layout.v0_size]
@@ -729,3 +744,42 @@ class MobilityEnvV2(MobilityEnv):
 def mobility_v2(**kwargs: Any) -> MobilityEnv:
     """``cv2x/Mobility-v2`` (:class:`MobilityEnvV2`)."""
     return MobilityEnvV2(**kwargs)
+
+
+@dataclass(frozen=True)
+class _Start:
+    """What :meth:`MobilityEnv.reset` computes for an episode seed that is worth keeping: the
+    stage-1 run (SPS warm-up) and its snapshot, the snapshot's links and the plan (shared, never
+    modified in snapshot mode)."""
+
+    sim: Simulator
+    snapshot: Any
+    links: SnapshotLinks
+    plan_m: NDArray[np.float64]
+
+
+#: process-wide cache of episode starts: key -> start, oldest first (``reset_cache`` bounds it)
+_START_CACHE: OrderedDict[tuple[Any, ...], _Start] = OrderedDict()
+
+
+def _start_key(env: MobilityEnv, seed: int) -> tuple[Any, ...]:
+    """Everything a start depends on: the scenario, the link truth and what the plan reads
+    (observation version, movers, reach, p_min, the model), and the seed."""
+    movers = tuple(int(i) for i in np.flatnonzero(env.mover_mask))
+    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min)
+    return (repr(env.config), env.truth_los, env.mode, repr(env.layout), env.model_name, movers, reach, int(seed))
+
+
+def _cached_start(env: MobilityEnv, seed: int) -> _Start | None:
+    key = _start_key(env, seed)
+    start = _START_CACHE.get(key)
+    if start is not None:
+        _START_CACHE.move_to_end(key)
+    return start
+
+
+def _store_start(env: MobilityEnv, seed: int) -> None:
+    plan = getattr(env, "plan_m", env.positions_m)
+    _START_CACHE[_start_key(env, seed)] = _Start(env.sim, env.snapshot, env.links, np.array(plan, dtype=np.float64))
+    while len(_START_CACHE) > env.reset_cache:
+        _START_CACHE.popitem(last=False)

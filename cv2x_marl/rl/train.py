@@ -102,6 +102,8 @@ class TrainConfig:
     eval_every: int = 50_000
     eval_episodes: int = 16
     eval_seed: int = 10_000
+    #: None: every training episode from a fresh seed; N: from N seeds, their starts cached
+    start_pool: int | None = None
 
     def __post_init__(self) -> None:
         if self.env_id not in ENV_IDS:
@@ -112,6 +114,15 @@ class TrainConfig:
             raise TrainError(f"train.eval_seed must be an integer >= 0, got {self.eval_seed!r}")
         if not isinstance(self.env, dict):
             raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
+        if self.start_pool is not None:
+            object.__setattr__(self, "start_pool", _check_count("train.start_pool", self.start_pool))
+
+    def env_for_training(self) -> dict[str, Any]:
+        """The env arguments of training and its evaluation callbacks: ``env`` plus, with a start
+        pool, a reset cache that holds the pool and the evaluation episodes (bit-identical starts)."""
+        if self.start_pool is None:
+            return dict(self.env)
+        return {**self.env, "reset_cache": self.start_pool + self.eval_episodes}
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -191,7 +202,8 @@ def make_vec_env(cfg: TrainConfig) -> Any:
     from cv2x_marl.experiments.evaluate import make_eval_env
     from cv2x_marl.rl.vec_env import AgentsVecEnv
 
-    return AgentsVecEnv(lambda: make_eval_env(cfg.env_id, **cfg.env), cfg.copies)
+    env = cfg.env_for_training()
+    return AgentsVecEnv(lambda: make_eval_env(cfg.env_id, **env), cfg.copies, start_pool=cfg.start_pool)
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
@@ -272,14 +284,14 @@ def _callbacks(
 
         def _on_training_start(self) -> None:
             # GBMU acts with plain offsets, whatever action mode the learned mover trains with
-            self.gbmu = self._eval("gbmu", {**cfg.env, "action_mode": "offset"})
+            self.gbmu = self._eval("gbmu", {**cfg.env_for_training(), "action_mode": "offset"})
             done = [int(r["timesteps"]) for r in read_eval_rows(run_dir / "eval.csv")]
             self.next = max(done) + cfg.eval_every if done else self.num_timesteps
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
                 self.next = self.num_timesteps + cfg.eval_every
-                res = self._eval(PpoPolicy(self.model), cfg.env)
+                res = self._eval(PpoPolicy(self.model), cfg.env_for_training())
                 assert self.gbmu is not None
                 row = {
                     "timesteps": self.num_timesteps,
