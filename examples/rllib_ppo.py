@@ -29,27 +29,17 @@ def env_creator(env_config: dict[str, Any]) -> Any:
     return ParallelPettingZooEnv(parallel_env_v2(**env_config))
 
 
-class RllibPolicy:
-    """The shared RLlib policy as a package policy (deterministic: the Gaussian's mean)."""
+def rllib_actor(module: Any) -> Any:
+    """The shared RLlib policy's deterministic action (the Gaussian's mean) for a batch of observations."""
 
-    name = "rllib-ppo"
-
-    def __init__(self, module: Any) -> None:
-        self.module = module
-
-    def reset(self, seed: int | None = None) -> None:
-        return None
-
-    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def act(obs: np.ndarray) -> np.ndarray:
         import torch
 
-        agents = list(observations)
-        obs = torch.from_numpy(np.stack([observations[a] for a in agents]).astype(np.float32))
         with torch.no_grad():
-            out = self.module.forward_inference({"obs": obs})
-        mean = out["action_dist_inputs"].numpy()[:, :2]  # [mean, log_std] per action dimension
-        act = np.clip(mean, -1.0, 1.0).astype(np.float32)
-        return dict(zip(agents, act, strict=True))
+            out = module.forward_inference({"obs": torch.from_numpy(obs)})
+        return np.clip(out["action_dist_inputs"].numpy()[:, :2], -1.0, 1.0)  # [mean, log_std] per dimension
+
+    return act
 
 
 def main() -> None:
@@ -65,6 +55,7 @@ def main() -> None:
 
     from cv2x_marl.experiments.evaluate import evaluate
     from cv2x_marl.parallel import ray_session
+    from cv2x_marl.policies.base import BatchPolicy
 
     env_config: dict[str, Any] = {"max_cycles": 100, "normalise_reward": True, "replan_every": 50}
     iterations, episodes, batch = args.iterations, args.episodes, 4000
@@ -96,7 +87,8 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             algo.save_to_path(tmp)  # the checkpoint layout RLlib restores with Algorithm.from_checkpoint
         algo.stop()
-    learned = evaluate("cv2x/Mobility-v2", RllibPolicy(module), episodes, 2026, env_kwargs=env_config, progress=False)
+    policy = BatchPolicy(rllib_actor(module), "rllib-ppo")
+    learned = evaluate("cv2x/Mobility-v2", policy, episodes, 2026, env_kwargs=env_config, progress=False)
     gbmu = evaluate("cv2x/Mobility-v2", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
     print(f"RLlib PPO  utility gain {learned['mean_utility_gain']:+.1%}  PRR gain {learned['mean_prr_gain']:+.1%}")
     print(f"GBMU       utility gain {gbmu['mean_utility_gain']:+.1%}  PRR gain {gbmu['mean_prr_gain']:+.1%}")

@@ -21,26 +21,17 @@ import numpy as np
 GROUP = "vehicles"
 
 
-class TorchRLPolicy:
-    """The shared TorchRL actor as a package policy (deterministic: the mean action)."""
+def torchrl_actor(actor_net: Any) -> Any:
+    """The shared actor's deterministic action (the TanhNormal's mode) for a batch of observations."""
 
-    name = "torchrl-mappo"
-
-    def __init__(self, actor_net: Any) -> None:
-        self.net = actor_net
-
-    def reset(self, seed: int | None = None) -> None:
-        return None
-
-    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def act(obs: np.ndarray) -> np.ndarray:
         import torch
 
-        agents = list(observations)
-        obs = torch.from_numpy(np.stack([observations[a] for a in agents]).astype(np.float32))
         with torch.no_grad():
-            loc, _ = self.net(obs[None])  # [1, n_agents, 2]
-        act = torch.tanh(loc[0]).numpy().astype(np.float32)  # the TanhNormal's mode
-        return dict(zip(agents, act, strict=True))
+            loc, _ = actor_net(torch.from_numpy(obs)[None])  # [1, n_agents, 2]
+        return torch.tanh(loc[0]).numpy()
+
+    return act
 
 
 def main() -> None:
@@ -63,6 +54,7 @@ def main() -> None:
 
     from cv2x_marl.env import parallel_env_v2
     from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.policies.base import BatchPolicy
 
     torch.manual_seed(args.seed)  # the example's own process: seeding torch is the script's choice
     env_config: dict[str, Any] = {"max_cycles": 100, "normalise_reward": True, "replan_every": 50}
@@ -142,9 +134,8 @@ def main() -> None:
         print(f"iteration {i + 1}: mean step reward {reward:.3f}")
     collector.shutdown()
 
-    learned = evaluate(
-        "cv2x/Mobility-v2", TorchRLPolicy(actor_net), episodes, 2026, env_kwargs=env_config, progress=False
-    )
+    policy = BatchPolicy(torchrl_actor(actor_net), "torchrl-mappo")
+    learned = evaluate("cv2x/Mobility-v2", policy, episodes, 2026, env_kwargs=env_config, progress=False)
     gbmu = evaluate("cv2x/Mobility-v2", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
     print(f"TorchRL MAPPO  utility gain {learned['mean_utility_gain']:+.1%}  PRR gain {learned['mean_prr_gain']:+.1%}")
     print(f"GBMU           utility gain {gbmu['mean_utility_gain']:+.1%}  PRR gain {gbmu['mean_prr_gain']:+.1%}")

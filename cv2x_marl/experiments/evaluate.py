@@ -17,7 +17,7 @@ import numpy as np
 
 from cv2x_marl.env.mobility_env import MobilityEnv
 from cv2x_marl.io import atomic_write, write_json
-from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
+from cv2x_marl.policies.base import BatchPolicy, Policy, RandomPolicy, StaticPolicy
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import check_file, run_folder
 
@@ -73,7 +73,7 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", d
     )
 
 
-class PpoPolicy:
+class PpoPolicy(BatchPolicy):
     """A stable-baselines3 PPO model (shared across agents) acting deterministically.
 
     Args:
@@ -81,9 +81,8 @@ class PpoPolicy:
         env: the env it will act in; its observation and action spaces must match the model's.
     """
 
-    name = "ppo"
-
     def __init__(self, path: Path | Any, env: MobilityEnv | None = None) -> None:
+        super().__init__(self._predict, "ppo")
         if not isinstance(path, str | Path):  # an already loaded model
             self.model = path
         else:
@@ -108,14 +107,9 @@ class PpoPolicy:
                     "(another vehicle count or n_neighbours?)"
                 )
 
-    def reset(self, seed: int | None = None) -> None:
-        return None
-
-    def act(self, observations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        agents = list(observations)
-        obs = np.stack([observations[a] for a in agents])
+    def _predict(self, obs: np.ndarray) -> np.ndarray:
         act, _ = self.model.predict(obs, deterministic=True)
-        return dict(zip(agents, np.asarray(act, dtype=np.float32), strict=True))
+        return np.asarray(act)
 
 
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
