@@ -204,11 +204,12 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
         methods=methods,
         progress=not args.quiet,
         overwrite=args.overwrite,
+        judge=args.judge,
     )
     if args.json:
         _print_json({k: v for k, v in summary.items() if k != "config"})
     else:
-        print(f"case {args.case}, {summary['n_realizations']} realisation(s), model {model.kind}")
+        print(f"case {args.case}, {summary['n_realizations']} realisation(s), model {model.kind}, judge {args.judge}")
         for name, m in summary["methods"].items():
             share = m.get("share_of_optimum")
             share_txt = "" if share is None else f", {share:.1%} of the optimum's gain"
@@ -427,6 +428,12 @@ def build_parser() -> argparse.ArgumentParser:
         default="snapshot",
         choices=["snapshot", "geometry", "always"],
         help="LOS state of the mover's links in the ground truth",
+    )
+    p.add_argument(
+        "--judge",
+        default="simulator",
+        choices=["simulator", "model"],
+        help="who scores utility and PRR: the link model (default) or the steering regression model",
     )
     p.add_argument("--out", type=Path, help="output folder")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)

@@ -118,7 +118,7 @@ METHOD_STYLE = {
 
 
 def plot_trajectories(
-    snapshot: Any, mover: int, target: Any, runs: dict[str, Any], path: str | Path, case: str
+    snapshot: Any, mover: int, target: Any, runs: dict[str, Any], path: str | Path, case: str, judge: str = "simulator"
 ) -> Path:
     """Fig. 5 / Fig. 7: the network and each method's path for the mover."""
     import numpy as np
@@ -147,12 +147,13 @@ def plot_trajectories(
     ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
-    ax.set_title(f"{case}: moving update of UE{mover} (true eq. 12 utility gain)")
+    scored = "true" if judge == "simulator" else "model-judged"
+    ax.set_title(f"{case}: moving update of UE{mover} ({scored} eq. 12 utility gain)")
     return _save(fig, path)
 
 
-def plot_gain_curves(runs: dict[str, Any], path: str | Path, case: str) -> Path:
-    """Fig. 6 / Fig. 8: true normalised utility gain (eq. 17) against the iteration."""
+def plot_gain_curves(runs: dict[str, Any], path: str | Path, case: str, judge: str = "simulator") -> Path:
+    """Fig. 6 / Fig. 8: normalised utility gain (eq. 17, scored by the judge) against the iteration."""
     fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
     for name, r in runs.items():
         color, label = METHOD_STYLE[name]
@@ -163,11 +164,12 @@ def plot_gain_curves(runs: dict[str, Any], path: str | Path, case: str) -> Path:
     ax.set_ylabel("utility gain (eq. 17), %")
     ax.grid(alpha=0.3)
     ax.legend()
-    ax.set_title(f"{case}: gain convergence (ground truth from the link model)")
+    scored = "ground truth from the link model" if judge == "simulator" else "judged by the regression model"
+    ax.set_title(f"{case}: gain convergence ({scored})")
     return _save(fig, path)
 
 
-def plot_realization_gains(runs: dict[str, Any], path: str | Path) -> Path:
+def plot_realization_gains(runs: dict[str, Any], path: str | Path, judge: str = "simulator") -> Path:
     """Fig. 9 and 10: per-realisation utility and PRR gains, sorted by GBMU's gain."""
     import numpy as np
 
@@ -188,7 +190,8 @@ def plot_realization_gains(runs: dict[str, Any], path: str | Path) -> Path:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[1].set_xlabel("realisation (sorted by GBMU utility gain)")
-    axes[0].set_title(f"Gains at convergence over {order.size} realisations (Fig. 9 and 10)")
+    scored = "" if judge == "simulator" else ", judged by the regression model"
+    axes[0].set_title(f"Gains at convergence over {order.size} realisations (Fig. 9 and 10{scored})")
     return _save(fig, path)
 
 

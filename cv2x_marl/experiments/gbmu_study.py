@@ -107,6 +107,45 @@ class MethodRun:
         return normalised_gain(self.prr_final, self.prr0)
 
 
+JUDGES = ("simulator", "model")
+
+
+class Judge:
+    """Who scores the positions: P of each mover link at positions [B, 2] (``success``), which links
+    count (``target``) and one mover's utility at many positions (``row``, for the optimum).
+
+    ``simulator`` (default): the link model on each snapshot (:class:`MoverLinks`: path loss,
+    shadowing, the snapshot's interference; what the env rewards). ``model``: the steering
+    regression model, ``P_hat(d_j(x), l_j, NSV_j)`` with the receivers, their main-interferer
+    distance and NSV as observed at the start: one reading of the paper's "the new position is used
+    to calculate the path loss and so on the P_ij(k)" (issue 15). Under ``model`` GBMU follows the
+    judge's own gradient, and ``oracle`` and ``optimum`` use the judge too.
+    """
+
+    def __init__(self, kind: str, links: MoverLinks, inputs: GbmuInputs, model: TwoDistanceModel) -> None:
+        if kind not in JUDGES:
+            raise ValueError(f"unknown judge {kind!r}; judges: {', '.join(JUDGES)}")
+        self.kind, self.links, self.inputs, self.model = kind, links, inputs, model
+        self.target = links.target if kind == "simulator" else inputs.mask
+
+    def success(self, pos_m: NDArray[np.float64]) -> NDArray[np.float64]:
+        """[B, N] P of each mover link with the movers at ``pos_m`` [B, 2] (0 where not a target)."""
+        if self.kind == "simulator":
+            return self.links.success(pos_m)
+        rx = self.inputs.rx_m
+        d = np.maximum(np.hypot(rx[..., 0] - pos_m[:, None, 0], rx[..., 1] - pos_m[:, None, 1]), 1.0)
+        return np.where(self.target, self.model.predict(d, self.inputs.l_m, self.inputs.nsv), 0.0)
+
+    def row(self, b: int) -> Any:
+        """Mover ``b``'s utility at many positions, for :func:`~cv2x_marl.policies.optimum.best_reachable`."""
+        if self.kind == "simulator":
+            return _SnapshotRow(self.links, b)
+        from cv2x_marl.policies.optimum import ModelRow
+
+        i = self.inputs
+        return ModelRow(i.rx_m[b], i.l_m[b], i.nsv[b], i.mask[b], self.model)
+
+
 def run_methods(
     links: MoverLinks,
     inputs: GbmuInputs,
@@ -118,33 +157,36 @@ def run_methods(
     methods: Sequence[str] = METHODS,
     progress: bool = False,
     oracle_h_m: float = 5.0,
+    judge: str = "simulator",
 ) -> dict[str, MethodRun]:
-    """Run each method from the snapshot positions and evaluate the truth along the way."""
+    """Run each method from the snapshot positions and score it with the judge along the way
+    (:class:`Judge`: the simulator's link model, or the steering model)."""
     from tqdm import tqdm
 
     p_min = model.p_min
+    jd = Judge(judge, links, inputs, model)
     out: dict[str, MethodRun] = {}
     for name in methods:
         if name == "optimum":
-            res = optimum_climb(links, p_min, delta * iterations, iterations, progress)
+            res = optimum_climb(links, p_min, delta * iterations, iterations, progress, judge=jd)
         else:
             if name == "oracle":
-                direction = oracle_direction(links.success, links.target, p_min, oracle_h_m)
+                direction = oracle_direction(jd.success, jd.target, p_min, oracle_h_m)
             else:
                 direction = gbmu_direction(inputs, model, fairness=name == "gbmu")
             with tqdm(total=iterations, desc=name, unit="it", file=sys.stderr, disable=not progress) as bar:
                 res = climb(links.start_m, direction, delta, th_pos_m, iterations, record_every, progress=bar.update)
-        p0 = links.success(links.start_m)
-        pf = links.success(res.final_m)
-        curve = np.array([utility_log(links.success(pos), links.target, p_min) for pos in res.trajectory_m])
+        p0 = jd.success(links.start_m)
+        pf = jd.success(res.final_m)
+        curve = np.array([utility_log(jd.success(pos), jd.target, p_min) for pos in res.trajectory_m])
         out[name] = MethodRun(
             res,
-            utility_log(p0, links.target, p_min),
-            utility_log(pf, links.target, p_min),
-            per_node_prr(p0, links.target),
-            per_node_prr(pf, links.target),
-            jain_fairness(p0, links.target),
-            jain_fairness(pf, links.target),
+            utility_log(p0, jd.target, p_min),
+            utility_log(pf, jd.target, p_min),
+            per_node_prr(p0, jd.target),
+            per_node_prr(pf, jd.target),
+            jain_fairness(p0, jd.target),
+            jain_fairness(pf, jd.target),
             curve,
         )
     return out
@@ -162,6 +204,16 @@ class _SnapshotRow:
         return utility_log(view.success(positions_m), view.target, p_min)
 
 
+class _Shifted:
+    """A utility row in a frame moved by ``origin_m`` (the search's box starts at 0)."""
+
+    def __init__(self, row: Any, origin_m: NDArray[np.float64]) -> None:
+        self.row, self.origin_m = row, origin_m
+
+    def utility(self, positions_m: NDArray[np.float64], p_min: float) -> NDArray[np.float64]:
+        return np.asarray(self.row.utility(positions_m + self.origin_m, p_min))
+
+
 def optimum_climb(
     links: MoverLinks,
     p_min: float,
@@ -170,27 +222,34 @@ def optimum_climb(
     progress: bool = False,
     grid_m: float = 5.0,
     refine: int = 8,
+    judge: Judge | None = None,
 ) -> ClimbResult:
     """The ``optimum`` method: each mover's best position under the study's truth utility.
 
-    The search (:func:`~cv2x_marl.policies.optimum.best_reachable`: a ``grid_m`` grid, the
+    ``judge`` (:class:`Judge`) scores positions; None: the simulator's link model. The search
+    (:func:`~cv2x_marl.policies.optimum.best_reachable`: a ``grid_m`` grid, the
     ``refine`` best points refined twice to a hundredth of the pitch) covers what the climbing
     methods can reach: the disc of radius ``reach_m`` (iteration cap x step) around the start,
-    within the road's box. With the LOS states of the mover's links fixed (``truth_los`` snapshot
-    or always) nothing outside the box can be better: projecting a position onto the box shortens
-    every link to a receiver in it. Returned as a :class:`ClimbResult` that jumps to the optimum at
+    within the bounding box of the target receivers (and the start). With the LOS states of the
+    mover's links fixed (``truth_los`` snapshot or always), and for the regression judge (P falls
+    with d), nothing outside that box can be better: projecting a position onto it shortens every
+    link to a receiver. Returned as a :class:`ClimbResult` that jumps to the optimum at
     iteration 1 and stays there, so its curve is the level the climbers are measured against.
     """
     from tqdm import tqdm
 
     from cv2x_marl.policies.optimum import ReachableSet, best_reachable
 
-    box = np.asarray(links.road.box_m, dtype=np.float64)
     start = links.start_m
+    target = links.target if judge is None else judge.target
     final = start.copy()
     for b in tqdm(range(start.shape[0]), desc="optimum", unit="snap", file=sys.stderr, disable=not progress):
-        reach = ReachableSet(start[b], reach_m, reach_m, box)
-        final[b], _ = best_reachable(_SnapshotRow(links, b), reach, p_min, grid_m=grid_m, refine=refine)  # type: ignore[arg-type]
+        pts = np.concatenate([links.rx_pos_m[b][target[b]], start[b][None]])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)  # the receivers' box: the search works in its frame
+        reach = ReachableSet(start[b] - lo, reach_m, reach_m, hi - lo)
+        row = _Shifted(_SnapshotRow(links, b) if judge is None else judge.row(b), lo)
+        found, _ = best_reachable(row, reach, p_min, grid_m=grid_m, refine=refine)
+        final[b] = found + lo
     n = start.shape[0]
     return ClimbResult(
         final,
@@ -313,14 +372,20 @@ def run_study(
     methods: Sequence[str] = METHODS,
     progress: bool = True,
     overwrite: bool = False,
+    judge: str = "simulator",
 ) -> dict[str, Any]:
-    """Run one of the paper's cases and write CSV, figures and ``summary.json`` into ``out_dir``."""
+    """Run one of the paper's cases and write CSV, figures and ``summary.json`` into ``out_dir``.
+
+    ``judge`` scores utility and PRR: ``simulator`` (the link model) or ``model`` (the steering
+    regression model, :class:`Judge`)."""
     if case not in CASES:
         raise ValueError(f"unknown case {case!r}; cases: {', '.join(CASES)}")
+    if judge not in JUDGES:
+        raise ValueError(f"unknown judge {judge!r}; judges: {', '.join(JUDGES)}")
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(METHODS)}")
-    params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "step": delta}
+    params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "judge": judge}
     with run_folder(out_dir, "gbmu", overwrite=overwrite, parameters=params):
         t0 = time.perf_counter()
         if case == "seven-node":
@@ -341,7 +406,9 @@ def run_study(
         links = MoverLinks.from_snapshots(cfg, snaps, movers, truth_los=truth_los)
         inputs = gbmu_inputs(snaps, movers, links, cfg.metrics.interferer_range_m)
         record_every = max(1, iterations // 1000) if case != "realizations" else max(1, iterations // 100)
-        runs = run_methods(links, inputs, model, delta, th_pos_m, iterations, record_every, methods, progress)
+        runs = run_methods(
+            links, inputs, model, delta, th_pos_m, iterations, record_every, methods, progress, judge=judge
+        )
         summary = summarize(runs)
         summary.update(
             {
@@ -351,6 +418,7 @@ def run_study(
                 "step": delta,
                 "th_pos_m": th_pos_m,
                 "truth_los": truth_los,
+                "judge": judge,
                 "movers": movers,
                 "model": {"kind": model.kind, "provenance": model.provenance},
                 "runtime_s": time.perf_counter() - t0,
@@ -364,8 +432,9 @@ def run_study(
             from cv2x_marl import plotting
 
             if case == "realizations":
-                plotting.plot_realization_gains(runs, out_dir / "fig9_fig10_gains.png")
+                plotting.plot_realization_gains(runs, out_dir / "fig9_fig10_gains.png", judge)
             else:
-                plotting.plot_trajectories(snaps[0], movers[0], links.target[0], runs, out_dir / "trajectory.png", case)
-                plotting.plot_gain_curves(runs, out_dir / "gain_vs_iteration.png", case)
+                target = links.target[0] if judge == "simulator" else inputs.mask[0]
+                plotting.plot_trajectories(snaps[0], movers[0], target, runs, out_dir / "trajectory.png", case, judge)
+                plotting.plot_gain_curves(runs, out_dir / "gain_vs_iteration.png", case, judge)
         return summary

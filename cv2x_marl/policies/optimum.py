@@ -28,15 +28,23 @@ response can lower the others' utility through interference, and the rounds need
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.policies.base import Actions, Observations
-from cv2x_marl.sim.evaluate import MoverRow
 
 FloatArray = NDArray[np.float64]
+
+
+class UtilityRow(Protocol):
+    """One mover's eq. 12 utility at many positions, the others fixed (:class:`MoverRow`,
+    :class:`ModelRow`, the GBMU study's judge rows)."""
+
+    def utility(self, candidates_m: FloatArray, p_min: float) -> FloatArray:
+        """[M] utility at candidate positions [M, 2] (m)."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -104,7 +112,7 @@ def _grid(lo: FloatArray, hi: FloatArray, pitch_m: float) -> FloatArray:
 
 
 def best_reachable(
-    row: MoverRow,
+    row: UtilityRow,
     reach: ReachableSet,
     p_min: float,
     grid_m: float = 2.5,
@@ -275,7 +283,7 @@ def model_plan(
     out = np.empty((len(reaches), 2))
     for b, reach in enumerate(reaches):
         row = ModelRow(starts_m[b] + inputs.rx_m[b], inputs.l_m[b], inputs.nsv[b], inputs.mask[b], model)
-        out[b], _ = best_reachable(row, reach, p_min, grid_m=grid_m, refine=4)  # type: ignore[arg-type]
+        out[b], _ = best_reachable(row, reach, p_min, grid_m=grid_m, refine=4)
     return out
 
 

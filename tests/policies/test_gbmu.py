@@ -179,3 +179,33 @@ def test_study_optimum_is_the_best_position_to_search_resolution() -> None:
         r, a = 200.0 * np.sqrt(rng.uniform(size=4)), rng.uniform(0, 2 * np.pi, size=4)
         probe = np.clip(links.start_m + np.stack([r * np.cos(a), r * np.sin(a)], axis=1), 0.0, box)
         assert np.all(u_of(probe) <= best + 1e-9)
+
+
+def test_model_judge_scores_the_seven_node_case_with_the_regression_model() -> None:
+    """--judge model: U(0) is sum_j ln P_hat(d_0j, l_j, NSV_j) of the fixture's receivers UE1-UE3,
+    computed here from the coordinates; the optimum under that judge is never beaten."""
+    from cv2x_marl.experiments.gbmu_study import SEVEN_NODE_POSITIONS_M, Judge, gbmu_inputs, seven_node_snapshot
+
+    cfg = from_dict({"channel": {"los": "always"}}, preset("paper"))
+    pos = SEVEN_NODE_POSITIONS_M
+    th_i = cfg.metrics.interferer_range_m
+    u0 = 0.0
+    for rx in (1, 2, 3):  # UE1-UE3 receive; I4-I6 share UE0's resource
+        d = np.hypot(*(pos[rx] - pos[0]))
+        dist_i = np.hypot(*(pos[4:7] - pos[rx]).T)
+        near = dist_i[dist_i <= th_i]
+        nsv, l_m = near.size, (near.min() if near.size else th_i)
+        u0 += np.log(max(float(PAPER.predict(d, l_m, nsv)), PAPER.p_min))
+    snap = seven_node_snapshot(cfg.sps.n_subchannels)
+    links = MoverLinks.from_snapshots(cfg, [snap], [0], truth_los="always")
+    judge = Judge("model", links, gbmu_inputs([snap], [0], links, th_i), PAPER)
+    assert utility_log(judge.success(links.start_m), judge.target, PAPER.p_min)[0] == pytest.approx(u0, rel=1e-12)
+
+    s = run_study("seven-node", cfg, PAPER, None, iterations=2000, progress=False, judge="model")
+    m = s["methods"]
+    assert s["judge"] == "model"
+    assert m["gbmu"]["mean_utility_gain"] > 0  # under its own model GBMU gains (measured +1.8 %)
+    for name in ("gbmu", "greedy", "oracle"):  # greedy ends on UE2 (outside the road box): still not better
+        assert m[name]["n_beats_optimum"] == 0
+    with pytest.raises(ValueError, match="unknown judge 'truth'"):
+        run_study("seven-node", cfg, PAPER, None, iterations=10, progress=False, judge="truth")
