@@ -5,7 +5,7 @@ Actions are precomputed draws from the action spaces (every vehicle moves every 
 the figure is the env's own cost. Long episodes measure ``step`` alone; the ``*_episodes100`` rows
 include a ``reset`` every 100 steps (a new stage-1 snapshot each time), as in training. Best of 3.
 The first call compiles the numba kernels (cached on disk afterwards); a warm-up step runs before
-timing. Writes ``results/bench_env.json``.
+timing. Writes ``benchmarks/results/bench_env.json``.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def main() -> None:
     for mode in ("snapshot_n21", "traffic_n21"):
         for n in (3, 21):
             print(f"ratio {mode} / mpe2 simple_spread N={n}: {rows[mode] / rows[f'mpe2_simple_spread_n{n}']:.2f}")
-    write_json(Path("results/bench_env.json"), rows)
+    write_json(Path("benchmarks/results/bench_env.json"), rows)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """GBMU speed: 144 realisations x 10,000 iterations, vectorised across realisations (goal: <= 5 s, one core).
 
 Snapshot generation (stage-1 resets) is timed apart; the GBMU figure is the climb plus the
-ground-truth evaluation of start and end. Writes ``results/bench_gbmu.json``.
+ground-truth evaluation of start and end. Writes ``benchmarks/results/bench_gbmu.json``.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def main() -> None:
         rows[f"{name}_144x10000_s"] = time.perf_counter() - t1
     for k, v in rows.items():
         print(f"{k}: {v:.3f}")
-    write_json(Path("results/bench_gbmu.json"), rows)
+    write_json(Path("benchmarks/results/bench_gbmu.json"), rows)
 
 
 if __name__ == "__main__":

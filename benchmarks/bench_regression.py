@@ -1,6 +1,6 @@
 """Stage-1 dataset of 10 paper runs plus the stage-2 fit, timed end to end (goal: < 60 s, one core).
 
-Run with ``python benchmarks/bench_regression.py``; writes ``results/bench_regression.json``.
+Run with ``python benchmarks/bench_regression.py``; writes ``benchmarks/results/bench_regression.json``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def main() -> None:
     rows["dataset_plus_linear_fit_s"] = rows["dataset_s"] + rows["fit_linear_s"]
     for k, v in rows.items():
         print(f"{k}: {v:.3f}" if isinstance(v, float) else f"{k}: {v}")
-    write_json(Path("results/bench_regression.json"), rows)
+    write_json(Path("benchmarks/results/bench_regression.json"), rows)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Simulator speed: the paper preset, and highway scaling with vehicle count.
 
 Run with ``make bench`` (or ``python benchmarks/bench_sim.py [--quick]``). Single-threaded BLAS is
-forced so the figures are per core. Prints a markdown table and writes ``results/bench_sim.json``.
+forced so the figures are per core. Prints a markdown table and writes ``benchmarks/results/bench_sim.json``.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def bench_highway(n_vehicles: int, seconds: float, repeat: int, max_range_m: flo
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="fewer repeats and sizes")
-    ap.add_argument("--out", type=Path, default=Path("results/bench_sim.json"))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_sim.json"))
     args = ap.parse_args()
     repeat = 2 if args.quick else 5
     rows = [bench_paper(repeat)]

@@ -6,7 +6,7 @@ are measured in the same process one after the other, so the ratio compares the 
 same machine state (goal of issue 10: ours >= 0.7x Pendulum). Ours goes through the
 :class:`~cv2x_marl.rl.vec_env.AgentsVecEnv` that ``cv2x-marl train`` uses (one-mover fast path);
 Pendulum through SB3's ``DummyVecEnv``. Also timed alone: the env part of ours (random actions
-through the same VecEnv, resets included). Best of ``--repeats``. Writes ``results/bench_train.json``.
+through the same VecEnv, resets included). Best of ``--repeats``. Writes ``benchmarks/results/bench_train.json``.
 
     python benchmarks/bench_train.py [--timesteps 32768] [--repeats 2] [--env cv2x/SingleMover-v2] [--start-pool N]
 
@@ -95,7 +95,7 @@ def main() -> None:
     for k, v in rows.items():
         print(f"{k}: {v:,.2f}" if isinstance(v, float) else f"{k}: {v}")
     suffix = "" if cfg.start_pool is None else f"_pool{cfg.start_pool}"
-    write_json(Path(f"results/bench_train{suffix}.json"), rows)
+    write_json(Path(f"benchmarks/results/bench_train{suffix}.json"), rows)
 
 
 if __name__ == "__main__":
