@@ -522,7 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="dataset, fit, GBMU study, movers vs baselines, REPORT.md")
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    p.add_argument("--quick", action="store_true", help="smaller settings: about a minute on 2 cores")
+    p.add_argument("--quick", action="store_true", help="smaller settings: about four minutes on 2 cores")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
     p.add_argument("--quiet", action="store_true")
