@@ -358,6 +358,13 @@ class MetricsConfig(Section):
         200.0, "NSV range th_I: co-channel transmitters within this distance of the receiver", "m", 1.0, 1e5
     )
     record_links: bool = _key(True, "Keep the per-link table (stage-2 data); false saves memory on large runs")
+    nsv_scope: str = _key(
+        "co_channel",
+        "Which transmitters NSV counts (and the main interferer l is the nearest of): co_channel: those on the "
+        "link's resource (same subframe and subchannel); concurrent: every vehicle transmitting in the same "
+        "subframe (issue 15's reading of the paper's Table 3). Dataset, fit, GBMU and observations follow it",
+        choices=("co_channel", "concurrent"),
+    )
 
 
 @dataclass(frozen=True)

@@ -623,7 +623,9 @@ class MobilityEnv(ParallelEnv):
         drift = self.positions_m - self.start_m
         if self._co_table is None or (self.mode == "traffic" and not np.array_equal(self._co_resource, self.resource)):
             self._co_resource = self.resource.copy()
-            self._co_table = co_channel_table(self.resource)
+            concurrent = self.config.metrics.nsv_scope == "concurrent"  # NSV over the subframe, not the resource
+            group = self.resource // self.config.sps.n_subchannels if concurrent else self.resource
+            self._co_table = co_channel_table(group)
         return build_observations(
             self.layout,
             self.positions_m,

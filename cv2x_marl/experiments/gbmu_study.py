@@ -69,12 +69,14 @@ def seven_node_snapshot(n_subchannels: int = 2) -> Snapshot:
 
 
 def gbmu_inputs(snapshots: Sequence[Snapshot], movers: Sequence[int], links: MoverLinks, th_i_m: float) -> GbmuInputs:
-    """One-hop knowledge of each mover: receiver positions, their main-interferer distance and NSV."""
+    """One-hop knowledge of each mover: receiver positions, their main-interferer distance and NSV
+    (counted as ``metrics.nsv_scope`` says: the mover's co-channel or all its concurrent transmitters)."""
     b, n = links.target.shape
     l_m = np.full((b, n), th_i_m)
     nsv = np.zeros((b, n), dtype=np.int64)
+    concurrent = links.config.metrics.nsv_scope == "concurrent"
     for k, (snap, i) in enumerate(zip(snapshots, movers, strict=True)):
-        res = snap.slot * snap.n_subchannels + snap.subchannel
+        res = snap.slot if concurrent else snap.slot * snap.n_subchannels + snap.subchannel
         co = np.flatnonzero((res == res[i]) & (np.arange(n) != i))
         if co.size:
             dist = np.hypot(*(snap.positions_m[:, None, :] - snap.positions_m[co][None, :, :]).transpose(2, 0, 1))

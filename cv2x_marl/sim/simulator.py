@@ -417,6 +417,8 @@ class Simulator:
             acc.add(tx, geo.distance_m[sel], p, outcome, cause, int(active.sum()))
         if cols is not None:
             rng_i = cfg.metrics.interferer_range_m
+            if cfg.metrics.nsv_scope == "concurrent":  # every transmitter of the subframe, any subchannel
+                rep, partner = self._group_terms(tx, rx, active, slot)
             dpart = self.displacement_m(geo.positions_m[rx[rep]], geo.positions_m[partner])
             dist_i = np.hypot(dpart[:, 0], dpart[:, 1])
             near = dist_i <= rng_i
@@ -446,9 +448,26 @@ class Simulator:
             ``rep`` [K]: index of the link; ``partner`` [K]: the co-channel transmitter
             (never the link's own transmitter nor its receiver).
         """
+        return self._group_terms(tx, rx, active, self.resource)
+
+    def _group_terms(
+        self, tx: IntArray, rx: IntArray, active: NDArray[np.bool_], group: IntArray
+    ) -> tuple[IntArray, IntArray]:
+        """For every link, the other active transmitters with its transmitter's ``group`` value
+        (the resource: co-channel; the slot: concurrent); one row per (link, partner).
+
+        Args:
+            tx, rx: [L] the links' transmitters and receivers.
+            active: [N] which vehicles transmit in the chunk.
+            group: [N] the grouping key per vehicle.
+
+        Returns:
+            ``rep`` [K]: index of the link; ``partner`` [K]: the other transmitter (never the
+            link's own transmitter nor its receiver).
+        """
         act = np.flatnonzero(active)
-        order = act[np.argsort(self.resource[act], kind="stable")]
-        r_sorted = self.resource[order]
+        order = act[np.argsort(group[act], kind="stable")]
+        r_sorted = group[order]
         starts = np.flatnonzero(np.r_[True, r_sorted[1:] != r_sorted[:-1]])
         sizes = np.diff(np.r_[starts, order.shape[0]])
         group_start = np.zeros(self.n, dtype=np.int64)
