@@ -420,8 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--methods",
-        default="gbmu,greedy,oracle,optimum",
-        help="comma-separated: gbmu, greedy, oracle, optimum (the best reachable position under the truth)",
+        default="gbmu,greedy,oracle,planner,optimum",
+        help="comma-separated: gbmu, greedy, oracle, planner (the steering model's best reachable position), "
+        "optimum (the best reachable position under the judge)",
     )
     p.add_argument(
         "--truth-los",

@@ -113,6 +113,7 @@ METHOD_STYLE = {
     "gbmu": ("#e15759", "GBMU"),
     "greedy": ("#4e79a7", "greedy (eq. 9)"),
     "oracle": ("#59a14f", "oracle"),
+    "planner": ("#b07aa1", "planner (model's best reachable)"),
     "optimum": ("#7f7f7f", "optimum (best reachable)"),
 }
 

@@ -29,7 +29,7 @@ from cv2x_marl.sim.evaluate import MoverLinks
 from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, utility_log
 
 CASES = ("seven-node", "snapshot", "realizations")
-METHODS = ("gbmu", "greedy", "oracle", "optimum")
+METHODS = ("gbmu", "greedy", "oracle", "planner", "optimum")
 
 # The illustrative network of Fig. 3: transmitter UE0, receivers UE1-UE3 in three directions with
 # d03 > d01 > d02, interferers I4-I6 on UE0's resource with l2 > l1 > l3 (metres).
@@ -171,6 +171,9 @@ def run_methods(
     for name in methods:
         if name == "optimum":
             res = optimum_climb(links, p_min, delta * iterations, iterations, progress, judge=jd)
+        elif name == "planner":  # GBMU's knowledge and model, a global search instead of gradient steps
+            steer = Judge("model", links, inputs, model)
+            res = optimum_climb(links, p_min, delta * iterations, iterations, progress, judge=steer)
         else:
             if name == "oracle":
                 direction = oracle_direction(jd.success, jd.target, p_min, oracle_h_m)

@@ -149,11 +149,11 @@ def test_study_outputs(tmp_path) -> None:  # type: ignore[no-untyped-def]
         assert key in s and key in s["methods"]["greedy"] and key in s["methods"]["oracle"]
     assert s["n_realizations"] == 6
     rows = (out / "realizations.csv").read_text().splitlines()
-    assert len(rows) == 1 + 4 * 6  # gbmu, greedy, oracle, optimum
+    assert len(rows) == 1 + 5 * 6  # gbmu, greedy, oracle, planner, optimum
     # the optimum bounds every method on the same snapshots, and the shares are against it
     m = s["methods"]
     assert m["optimum"]["share_of_optimum"] == 1.0
-    for name in ("gbmu", "greedy", "oracle"):
+    for name in ("gbmu", "greedy", "oracle", "planner"):
         assert m[name]["n_beats_optimum"] == 0
         assert m[name]["share_of_optimum"] == m[name]["mean_utility_gain"] / m["optimum"]["mean_utility_gain"]
     assert m["optimum"]["mean_moved_m"] <= 300.0 + 1e-9  # within the climbers' reach: 300 iterations x 1 m
@@ -207,5 +207,7 @@ def test_model_judge_scores_the_seven_node_case_with_the_regression_model() -> N
     assert m["gbmu"]["mean_utility_gain"] > 0  # under its own model GBMU gains (measured +1.8 %)
     for name in ("gbmu", "greedy", "oracle"):  # greedy ends on UE2 (outside the road box): still not better
         assert m[name]["n_beats_optimum"] == 0
+    # under the model judge the planner (the steering model's global search) is the optimum
+    assert m["planner"]["mean_utility_gain"] == pytest.approx(m["optimum"]["mean_utility_gain"], rel=1e-12)
     with pytest.raises(ValueError, match="unknown judge 'truth'"):
         run_study("seven-node", cfg, PAPER, None, iterations=10, progress=False, judge="truth")
