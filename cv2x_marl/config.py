@@ -305,6 +305,13 @@ class SpsConfig(Section):
     exclude_unmonitored: bool = _key(
         True, "Exclude candidates in the subframe of the UE's own transmission (not monitored: half duplex)"
     )
+    reservation_signalling: str = _key(
+        "always",
+        "always: every SCI reserves its resource for the next period and the keep/reselect draw happens at the "
+        "period end (the model so far); standard: the draw happens when the counter reaches 1 and the last SCI "
+        "of a UE that will reselect carries no reservation (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1; issue 13)",
+        choices=("always", "standard"),
+    )
 
     def _check(self) -> None:
         if self.counter_min > self.counter_max:

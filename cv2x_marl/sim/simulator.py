@@ -167,6 +167,9 @@ class Simulator:
         pick = self.rng.sps.integers(0, cand.shape[1], size=self.n)
         self.resource = cand[np.arange(self.n), pick]
         self.counter = sps.draw_counters(cfg.sps, self.rri, self.n, self.rng.sps)
+        self._releasing = np.zeros(self.n, dtype=bool)
+        if cfg.sps.reservation_signalling == "standard":
+            self._decide_releases()
         self.subframe = 0
         self._rssi_ring = np.full((self._sensing_periods, self.n, self.n_res), np.nan, dtype=np.float32)
         self._new_period_buffers()
@@ -410,7 +413,7 @@ class Simulator:
         self.last_links = (tx, rx, p, cause)
         # sensing: S-RSSI of every resource heard in this chunk, SCI RSRP of every decodable SCI
         self._period_rssi += total
-        sci = ~fail
+        sci = ~fail & ~self._releasing[tx]  # a UE's last SCI before reselecting reserves nothing (standard)
         np.maximum.at(self._period_rsrp, key[sci], rx_dbm[sci] - self._rsrp_offset_db)
 
         if acc is not None:
@@ -494,6 +497,15 @@ class Simulator:
         dense[geo.rx, geo.tx] = db_to_linear(geo.mean_rx_dbm)
         return dense[rx, tx]
 
+    def _decide_releases(self) -> None:
+        """``sps.reservation_signalling=standard``: the keep/reselect draw of the UEs whose counter
+        reaches 1 in the coming period (TS 36.321 5.14.1.1: with probability ``keep_probability``
+        the UE keeps its resource); those that will reselect send SCIs without a reservation in that
+        period (TS 36.213 14.1.1.6), so no one excludes their resource on that account."""
+        last = self.counter == 1
+        keep = self.rng.sps.random(self.n) < self.config.sps.keep_probability
+        self._releasing = last & ~keep
+
     def _end_period(self) -> None:
         """Commit sensing, run the SPS counters and reselections, then move the vehicles."""
         cfg = self.config
@@ -508,7 +520,10 @@ class Simulator:
 
         self.counter -= 1
         expired = self.counter <= 0
-        keep = self.rng.sps.random(self.n) < cfg.sps.keep_probability
+        if cfg.sps.reservation_signalling == "standard":
+            keep = ~self._releasing  # decided when the counter reached 1 (_decide_releases)
+        else:
+            keep = self.rng.sps.random(self.n) < cfg.sps.keep_probability
         reselect = np.flatnonzero(expired & ~keep)
         self.n_expiries += int(expired.sum())
         self.n_keeps += int((expired & keep).sum())
@@ -524,6 +539,8 @@ class Simulator:
             choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
             self.resource[reselect] = cand[np.arange(reselect.size), choice]
             self.n_reselections += int(reselect.size)
+        if cfg.sps.reservation_signalling == "standard":
+            self._decide_releases()
         self._new_period_buffers()
         self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
         self._geometry = None
