@@ -529,18 +529,9 @@ def apply_overrides(cfg: ScenarioConfig, assignments: Iterable[str]) -> Scenario
 
 def load_config_file(path: str | Path, base: ScenarioConfig | None = None) -> ScenarioConfig:
     """Read a YAML (1.2 core schema) or JSON configuration file (nested sections) over ``base``."""
-    from cv2x_marl.yamlcore import YAMLError, load_path
+    from cv2x_marl.yamlcore import load_mapping
 
-    path = Path(path)
-    try:
-        data = load_path(path)
-    except OSError as exc:
-        raise ConfigError(f"cannot read configuration file {path}: {exc}") from exc
-    except (ValueError, YAMLError) as exc:
-        raise ConfigError(f"configuration file {path} is not valid {path.suffix[1:] or 'YAML'}: {exc}") from exc
-    data = data or {}
-    if not isinstance(data, dict):
-        raise ConfigError(f"configuration file {path} must hold a mapping of sections")
+    data = load_mapping(path, "configuration file", ConfigError)
     if "preset" in data:
         base = preset(str(data.pop("preset")))
     return from_dict(data, base)

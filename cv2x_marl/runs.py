@@ -179,6 +179,21 @@ class _Lock:
             self.fd = None
 
 
+def _lock_folder(folder: Path, command: str, started_utc: str) -> _Lock:
+    """Take the run lock of ``folder`` (``<parent>/.<name>.lock``) for ``command``.
+
+    Raises:
+        RunFolderError: another run holds it, or the lock file cannot be created.
+    """
+    holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": command, "started_utc": started_utc}
+    lock = _Lock(folder.parent / f".{folder.resolve().name}.lock", holder)
+    try:
+        lock.acquire()
+    except OSError as exc:
+        raise RunFolderError(f"cannot lock output folder {folder}: {exc.strerror or exc}") from exc
+    return lock
+
+
 class RunFolder:
     """Context manager that makes ``path`` the output folder of one run (see the module docstring).
 
@@ -206,7 +221,7 @@ class RunFolder:
         keep_on_failure: bool = False,
         parameters: dict[str, Any] | None = None,
     ) -> None:
-        self.path = Path(path)
+        self.path = Path(path).absolute()  # `--out .` has a name and a parent
         self.command = command
         self.overwrite = overwrite
         self.resume = resume
@@ -228,13 +243,7 @@ class RunFolder:
         if not os.access(path.parent, os.W_OK | os.X_OK):
             raise RunFolderError(f"cannot write output folder {path}: {path.parent} is not writable")
         started = _now()
-        holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": self.command, "started_utc": started}
-        lock = _Lock(path.parent / f".{path.name}.lock", holder)
-        try:
-            lock.acquire()
-        except OSError as exc:
-            raise RunFolderError(f"cannot lock output folder {path}: {exc.strerror or exc}") from exc
-        self._lock = lock
+        lock = self._lock = _lock_folder(path, self.command, started)
         try:
             self._repair()
             previous = read_manifest(path) if path.is_dir() else None
@@ -383,13 +392,7 @@ def locked(folder: str | Path, command: str) -> Iterator[None]:
     Raises:
         RunFolderError: another run holds the folder.
     """
-    folder = Path(folder)
-    holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": command, "started_utc": _now()}
-    lock = _Lock(folder.parent / f".{folder.resolve().name}.lock", holder)
-    try:
-        lock.acquire()
-    except OSError as exc:
-        raise RunFolderError(f"cannot lock {folder}: {exc.strerror or exc}") from exc
+    lock = _lock_folder(Path(folder), command, _now())
     try:
         yield
     finally:

@@ -28,7 +28,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["CoreLoader", "YAMLError", "load", "load_path", "parse_scalar"]
+__all__ = ["CoreLoader", "YAMLError", "load", "load_mapping", "load_path", "parse_scalar"]
 
 YAMLError = yaml.YAMLError
 
@@ -128,3 +128,21 @@ def load_path(path: str | Path) -> Any:
     path = Path(path)
     text = path.read_text()
     return json.loads(text) if path.suffix == ".json" else load(text)
+
+
+def load_mapping(path: str | Path, what: str, error: type[Exception] = ValueError) -> dict[str, Any]:
+    """:func:`load_path` for files that must hold a mapping (an empty file is ``{}``).
+
+    Args:
+        path: the file.
+        what: what the file is, for messages (``training config``, ``baseline file``, ...).
+        error: the exception type raised, with a message naming ``what`` and ``path``.
+    """
+    try:
+        data = load_path(path)
+    except (OSError, ValueError, YAMLError) as exc:
+        raise error(f"cannot read {what} {path}: {exc}") from exc
+    data = data or {}
+    if not isinstance(data, dict):
+        raise error(f"{what} {path} must be a mapping, got {type(data).__name__}")
+    return data

@@ -58,15 +58,10 @@ def is_baseline_file(spec: str) -> bool:
 def load_baseline(path: str | Path) -> Baseline:
     """Read and validate a baseline file; errors name the file, the key and the allowed values."""
     from cv2x_marl.experiments.evaluate import ENV_IDS
-    from cv2x_marl.yamlcore import YAMLError, load_path
+    from cv2x_marl.yamlcore import load_mapping
 
     path = Path(path)
-    try:
-        data = load_path(path) or {}
-    except (OSError, ValueError, YAMLError) as exc:
-        raise ValueError(f"cannot read baseline file {path}: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"baseline file {path} must be a mapping with keys {', '.join(KEYS)}")
+    data = load_mapping(path, "baseline file", ValueError)
     bad = sorted(set(data) - set(KEYS))
     if bad:
         raise ValueError(f"baseline file {path}: unknown key(s) {bad}; keys: {', '.join(KEYS)}")

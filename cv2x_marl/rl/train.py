@@ -135,16 +135,9 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
 
     Unknown keys raise :class:`TrainError` naming them; CLI values override the file.
     """
-    from cv2x_marl.yamlcore import YAMLError, load_path
+    from cv2x_marl.yamlcore import load_mapping
 
-    data: dict[str, Any] = {}
-    if path is not None:
-        try:
-            data = load_path(path) or {}
-        except (OSError, ValueError, YAMLError) as exc:
-            raise TrainError(f"cannot read training config {path}: {exc}") from exc
-        if not isinstance(data, dict):
-            raise TrainError(f"training config {path} must be a mapping")
+    data = {} if path is None else load_mapping(path, "training config", TrainError)
     known = {f.name for f in dataclasses.fields(TrainConfig)}
     bad = sorted(set(data) - known)
     if bad:

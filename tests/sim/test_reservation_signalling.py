@@ -47,7 +47,7 @@ def test_releasing_ues_reselect_at_the_period_end_and_the_rest_keep_their_counte
     assert sim.n_expiries == int(releasing.sum()) == sim.n_reselections
     np.testing.assert_array_equal(sim.counter[~releasing], counters[~releasing] - 1)
     assert np.all(sim.counter[releasing] >= 5)  # fresh counters, 5-15 at RRI 100
-    np.testing.assert_array_equal(sim._releasing, (sim.counter == 1) & True)
+    np.testing.assert_array_equal(sim._releasing, sim.counter == 1)  # keep_probability 0: all of them
 
 
 def test_unknown_mode_is_refused_by_name() -> None:
