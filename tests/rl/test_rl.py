@@ -71,22 +71,33 @@ def test_adapter_truncation_and_terminal_observation() -> None:
 
 
 def test_adapter_one_mover_path_is_bit_identical_to_the_full_step() -> None:
-    fast, full = _vec(movers=[0]), _vec(movers=[0])
-    full.fast = False
-    assert fast.fast
-    for v in (fast, full):
+    """Three routes, one result: all copies in one compiled call (MoverBatch), one step_mover per
+    copy, and the full N-vehicle step."""
+    batched = _vec(movers=[0])
+    per_copy = AgentsVecEnv(lambda: parallel_env(movers=[0], **FAST_ENV), 2, batched=False)
+    full = AgentsVecEnv(lambda: parallel_env(movers=[0], **FAST_ENV), 2, batched=False)
+    full.fast = False  # every step through MobilityEnv.step
+    assert batched.fast and batched.batch is not None and per_copy.fast and per_copy.batch is None
+    for v in (batched, per_copy, full):
         v.seed(2)
-    np.testing.assert_array_equal(fast.reset(), full.reset())
+    first = batched.reset()
+    np.testing.assert_array_equal(first, per_copy.reset())
+    np.testing.assert_array_equal(first, full.reset())
     rng = np.random.default_rng(3)
     for _ in range(12):  # two auto-resets (max_cycles = 5)
         act = rng.uniform(-1.3, 1.3, (2, 2)).astype(np.float32)
-        a, b = fast.step(act), full.step(act)
-        for x, y in zip(a[:3], b[:3], strict=True):
-            np.testing.assert_array_equal(x, y)
-        for ia, ib in zip(a[3], b[3], strict=True):
-            assert ia.keys() == ib.keys()
-            for key in ia:
-                np.testing.assert_array_equal(ia[key], ib[key])
+        a = batched.step(act)
+        for b in (per_copy.step(act), full.step(act)):
+            for x, y in zip(a[:3], b[:3], strict=True):
+                np.testing.assert_array_equal(x, y)
+                assert x.dtype == y.dtype
+            for ia, ib in zip(a[3], b[3], strict=True):
+                assert ia.keys() == ib.keys()
+                for key in ia:
+                    np.testing.assert_array_equal(ia[key], ib[key])
+    # the copies' own objects see where the batch moved them (get_attr / env_method write it back)
+    np.testing.assert_array_equal(batched.get_attr("positions_m"), full.get_attr("positions_m"))
+    np.testing.assert_array_equal(batched.env_method("state"), full.env_method("state"))
 
 
 def test_ppo_seed_gives_identical_parameters(tmp_path: Path) -> None:

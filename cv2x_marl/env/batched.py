@@ -1,0 +1,448 @@
+"""One compiled step for K one-mover env copies: the batched core of the vector envs.
+
+:meth:`MobilityEnv.step_mover` steps one copy in about 150-200 us, almost all of it Python around
+small arrays. :class:`MoverBatch` keeps the per-step state of K copies (each in snapshot mode with
+one mover and the individual reward, e.g. K ``SingleMover`` envs) in stacked arrays and advances
+all of them with one numba call, :func:`_mover_steps`, which does for each copy exactly what
+``step_mover`` does, in the same order of floating-point operations: the action clip (and the
+plan residual), the settle phase, the drift and region bounds, the mover's links
+(:func:`cv2x_marl.sim.kernels.mover_row_success`'s per-link code), the eq. 12 utility, PRR and
+Jain's index (:func:`~cv2x_marl.sim.kernels.link_summaries`'s additions), the pair-geometry update,
+the reward (utility or improvement), the version-1 own state and the observation
+(:func:`cv2x_marl.env.observation._observation_kernel`). Results are bit-identical to
+``step_mover`` (``tests/env/test_vector.py``).
+
+Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
+:meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
+copy's env object is not updated (its ``positions_m`` stay at the start): read the state from the
+batch (:attr:`MoverBatch.positions_m`) or call :meth:`MoverBatch.sync` first.
+
+Users get it through :class:`cv2x_marl.env.vector.SingleMoverVectorEnv` (Gymnasium's
+``vector_entry_point``) and :class:`cv2x_marl.rl.vec_env.AgentsVecEnv` (SB3).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from cv2x_marl.env.observation import FEATURES, OWN, OWN_V1, _observation_kernel
+from cv2x_marl.sim import kernels
+from cv2x_marl.sim.kernels import _moved_signal_dbm, _success_at_level
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+FloatArray = NDArray[np.float64]
+
+# columns of the per-copy scalar state ``MoverBatch.scalars``
+U, U0, PRR, PRR0, JAIN, BASE_PREV, U_NOW, U_PREV, U_START, U_BEST = range(10)
+N_SCALARS = 10
+
+
+def batch_problem(env: MobilityEnv) -> str | None:
+    """Why ``env`` cannot be stepped by a :class:`MoverBatch` (None when it can)."""
+    if env.fast_mover is None:
+        return "it needs snapshot mode, exactly one mover and reward='individual'"
+    if env.render_mode is not None:
+        return "rendering needs the env objects' own state (render_mode is set)"
+    if env.replan_every is not None:
+        return "replan_every recomputes the sensing plan in Python"
+    if env.config.channel.pathloss != "winner_b1" or env.truth_los == "geometry":
+        return "the compiled link kernels need channel.pathloss winner_b1 and truth_los snapshot or always"
+    return None
+
+
+@njit(cache=True)
+def _mover_steps(
+    active: NDArray[np.bool_],
+    actions: FloatArray,
+    mover: NDArray[np.int64],
+    t: NDArray[np.int64],
+    positions_m: FloatArray,
+    start_m: FloatArray,
+    plan_m: FloatArray,
+    best_m: FloatArray,
+    disp_m: FloatArray,
+    dist2_m2: FloatArray,
+    co_table: NDArray[np.int64],
+    target: NDArray[np.bool_],
+    p: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    level_db: FloatArray,
+    scalars: FloatArray,
+    period_m: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    link_model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    max_step_m: float,
+    max_cycles: int,
+    settle_steps: int,
+    max_drift_m: float,
+    roi: bool,
+    box_m: FloatArray,
+    residual: bool,
+    normalise: bool,
+    improvement: bool,
+    p_min: float,
+    version: int,
+    k_neighbours: int,
+    scale_m: float,
+    region_m: float,
+    interferer_range_m: float,
+    obs_clip: float,
+    size: int,
+    extra: int,
+    own_v1_offset: int,
+    alpha: FloatArray,
+    beta: FloatArray,
+    gamma: FloatArray,
+    logistic: bool,
+    model_p_min: float,
+    obs_out: NDArray[np.float32],
+    reward_out: FloatArray,
+    done_out: NDArray[np.bool_],
+    info_out: FloatArray,
+) -> None:
+    """Step every ``active`` copy k: what ``MobilityEnv.step_mover(actions[k])`` does, in place.
+
+    Shapes (K copies of N vehicles, G co-channel slots): ``actions`` [K, 2]; ``mover``, ``t`` [K];
+    ``positions_m``, ``start_m`` [K, N, 2]; ``plan_m``, ``best_m`` [K, 2] (the mover's); ``disp_m``
+    [K, 2, N, N]; ``dist2_m2`` [K, N, N]; ``co_table`` [K, N, G]; ``target``, ``p`` [K, N, N];
+    ``los_row``, ``gain_row_db``, ``level_db`` [K, N] (the mover's link constants);
+    ``scalars`` [K, N_SCALARS]. Outputs: ``obs_out`` [K, size], ``reward_out``, ``done_out`` [K],
+    ``info_out`` [K, 8] (``INFO_KEYS``). Lengths in m, powers in dBm / dB.
+    """
+    n_copies = actions.shape[0]
+    n = positions_m.shape[1]
+    rows = np.zeros(1, dtype=np.int64)
+    drift = np.empty((n, 2))
+    inv = 1.0 / scale_m
+    for k in range(n_copies):
+        if not active[k]:
+            continue
+        i = mover[k]
+        a0 = actions[k, 0]
+        a1 = actions[k, 1]
+        clipped = a0 < -1.0 or a0 > 1.0 or a1 < -1.0 or a1 > 1.0
+        x_old = positions_m[k, i, 0]
+        y_old = positions_m[k, i, 1]
+        if residual:  # MobilityEnv._toward_plan
+            a0 = a0 + min(max((plan_m[k, 0] - x_old) / max_step_m, -1.0), 1.0)
+            a1 = a1 + min(max((plan_m[k, 1] - y_old) / max_step_m, -1.0), 1.0)
+        off0 = min(max(a0, -1.0), 1.0) * max_step_m
+        off1 = min(max(a1, -1.0), 1.0) * max_step_m
+        if t[k] >= max_cycles - settle_steps:
+            off0 = 0.0
+            off1 = 0.0
+        x = x_old + off0
+        y = y_old + off1
+        if max_drift_m < np.inf:  # MobilityEnv._bound
+            d0 = x - start_m[k, i, 0]
+            d1 = y - start_m[k, i, 1]
+            f = min(1.0, max_drift_m / max(np.hypot(d0, d1), 1e-12))
+            x = start_m[k, i, 0] + d0 * f
+            y = start_m[k, i, 1] + d1 * f
+        if roi:
+            x = min(max(x, 0.0), box_m[0])
+            y = min(max(y, 0.0), box_m[1])
+        positions_m[k, i, 0] = x
+        positions_m[k, i, 1] = y
+        t[k] += 1
+        # the mover's links (kernels.mover_row_success) and their summary (kernels.link_summaries)
+        count = 0
+        s1 = 0.0
+        s2 = 0.0
+        u = 0.0
+        for j in range(n):
+            if target[k, i, j]:
+                s_dbm = _moved_signal_dbm(
+                    x, y, positions_m[k], i, j, period_m, los_row[k], gain_row_db[k], wb1, range2_m2
+                )
+                pj = _success_at_level(
+                    s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
+                )
+                p[k, i, j] = pj
+                count += 1
+                s1 += pj
+                s2 += pj * pj
+                u += math.log(max(pj, p_min))
+            else:
+                p[k, i, j] = 0.0
+        prr = 0.0
+        jain = 0.0
+        if count > 0:
+            prr = s1 / count
+            if s2 > 0.0:
+                jain = s1 * s1 / (count * s2)
+        if normalise:
+            u = u / max(count, 1)
+        scalars[k, U] = u
+        scalars[k, PRR] = prr
+        scalars[k, JAIN] = jain
+        # pair geometry (MobilityEnv._move_geometry): the row first, then the column
+        for j in range(n):
+            dx = positions_m[k, j, 0] - x
+            dy = positions_m[k, j, 1] - y
+            if period_m[0] < np.inf:
+                dx -= period_m[0] * np.rint(dx / period_m[0])
+            if period_m[1] < np.inf:
+                dy -= period_m[1] * np.rint(dy / period_m[1])
+            if j == i:
+                dx = 0.0
+                dy = 0.0
+            disp_m[k, 0, i, j] = dx
+            disp_m[k, 1, i, j] = dy
+            r2 = dx * dx + dy * dy
+            dist2_m2[k, i, j] = r2
+        for j in range(n):
+            disp_m[k, 0, j, i] = -disp_m[k, 0, i, j]  # -0.0 on the diagonal, as numpy writes it
+            disp_m[k, 1, j, i] = -disp_m[k, 1, i, j]
+            dist2_m2[k, j, i] = dist2_m2[k, i, j]
+        # reward (individual; MobilityEnv._step_rewards)
+        if improvement:
+            reward_out[k] = u - scalars[k, BASE_PREV]
+            scalars[k, BASE_PREV] = u
+        else:
+            reward_out[k] = u
+        if version >= 1:  # MobilityEnv._update_v1_row
+            uu = u if normalise else u / max(count, 1)
+            scalars[k, U_PREV] = scalars[k, U_NOW]
+            scalars[k, U_NOW] = uu
+            if uu > scalars[k, U_BEST]:
+                scalars[k, U_BEST] = uu
+                best_m[k, 0] = x
+                best_m[k, 1] = y
+        done = t[k] >= max_cycles
+        done_out[k] = done
+        # observation (MobilityEnv._build for the mover, then its own v1 entries)
+        for j in range(n):
+            drift[j, 0] = positions_m[k, j, 0] - start_m[k, j, 0]
+            drift[j, 1] = positions_m[k, j, 1] - start_m[k, j, 1]
+        rows[0] = i
+        ob = _observation_kernel(
+            disp_m[k], dist2_m2[k], co_table[k], target[k], positions_m[k], drift, t[k] / max_cycles,
+            k_neighbours, scale_m, region_m, interferer_range_m, obs_clip, rows, size, extra, alpha, beta,
+            gamma, logistic, model_p_min, p[k],
+        )  # fmt: skip
+        for f in range(size):
+            obs_out[k, f] = ob[0, f]
+        if version >= 1:  # MobilityEnv._own_v1_row
+            now = scalars[k, U_NOW]
+            reach = max(max_cycles - settle_steps - t[k], 0) * max_step_m
+            own = (
+                now,
+                10.0 * (now - scalars[k, U_PREV]),
+                now - scalars[k, U_START],
+                scalars[k, U_BEST] - now,
+                (best_m[k, 0] - x) * inv,
+                (best_m[k, 1] - y) * inv,
+                (plan_m[k, 0] - x) * inv,
+                (plan_m[k, 1] - y) * inv,
+                reach * inv,
+            )
+            for f in range(OWN_V1):
+                obs_out[k, own_v1_offset + f] = min(max(own[f], -obs_clip), obs_clip)
+        info_out[k, 0] = u
+        info_out[k, 1] = scalars[k, U0]
+        info_out[k, 2] = prr
+        info_out[k, 3] = scalars[k, PRR0]
+        info_out[k, 4] = jain
+        info_out[k, 5] = x - x_old
+        info_out[k, 6] = y - y_old
+        info_out[k, 7] = 1.0 if clipped else 0.0
+
+
+class MoverBatch:
+    """The per-step state of K one-mover env copies, stepped by one compiled call.
+
+    Args:
+        envs: K :class:`MobilityEnv` copies of one configuration (same scenario, options and
+            observation layout) that :func:`batch_problem` accepts. Reset a copy through its own
+            ``reset`` (seeding, reset cache), then :meth:`load` it.
+    """
+
+    def __init__(self, envs: Sequence[MobilityEnv]) -> None:
+        if not envs:
+            raise ValueError("MoverBatch needs at least one env copy")
+        first = envs[0]
+        for k, env in enumerate(envs):
+            problem = batch_problem(env)
+            if problem is not None:
+                raise ValueError(f"env copy {k} cannot be stepped in a batch: {problem}")
+            if _signature(env) != _signature(first):
+                raise ValueError(f"env copy {k} differs from copy 0 in its scenario or options")
+        self.envs = list(envs)
+        self.k = len(envs)
+        n = first.n
+        self.n = n
+        self.layout = first.layout
+        self.active = np.zeros(self.k, dtype=bool)
+        self.mover = np.zeros(self.k, dtype=np.int64)
+        self.t = np.zeros(self.k, dtype=np.int64)
+        self.positions_m = np.zeros((self.k, n, 2))
+        self.start_m = np.zeros((self.k, n, 2))
+        self.plan_m = np.zeros((self.k, 2))
+        self.best_m = np.zeros((self.k, 2))
+        self.disp_m = np.zeros((self.k, 2, n, n))
+        self.dist2_m2 = np.zeros((self.k, n, n))
+        self.co_table = np.full((self.k, n, 1), -1, dtype=np.int64)
+        self.target = np.zeros((self.k, n, n), dtype=bool)
+        self.p = np.zeros((self.k, n, n))
+        self.los_row = np.zeros((self.k, n), dtype=bool)
+        self.gain_row_db = np.zeros((self.k, n))
+        self.level_db = np.zeros((self.k, n))
+        self.scalars = np.zeros((self.k, N_SCALARS))
+        #: copies that hold an episode (loaded since construction)
+        self.loaded = np.zeros(self.k, dtype=bool)
+        self._const: tuple[Any, ...] | None = None  # the kernel's constants, from the first loaded copy
+        assert OWN == 5 and FEATURES == 7  # the layout _observation_kernel writes
+
+    def _constants(self, env: MobilityEnv) -> tuple[Any, ...]:
+        """The kernel arguments every copy shares (links, options, layout, model), from a reset env."""
+        (period, _los, _gain, wb1, range2, _idx, _val, _noise, model, per_sinr, per, thr, sens, _t) = (
+            env.links._kernel_args
+        )
+        layout = env.layout
+        fm = env.model
+        return (
+            period, wb1, float(range2), int(model), per_sinr, per, float(thr), float(sens),
+            env.max_step_m, int(env.max_cycles), int(env.settle_steps),
+            np.inf if env.max_drift_m is None else float(env.max_drift_m),
+            bool(env.roi), np.asarray(env.box_m, dtype=np.float64),
+            env.action_mode == "plan_residual", bool(env.normalise_reward),
+            env.reward_form == "improvement", float(env.p_min), int(layout.version),
+            layout.n_neighbours, layout.scale_m, layout.region_m, layout.interferer_range_m, layout.obs_clip,
+            layout.size, layout.per_neighbour_extra, layout.own_v1_offset,
+            np.zeros(1) if fm is None else np.ascontiguousarray(fm.alpha, dtype=np.float64),
+            np.zeros(1) if fm is None else np.ascontiguousarray(fm.beta, dtype=np.float64),
+            np.zeros(1) if fm is None else np.ascontiguousarray(fm.gamma, dtype=np.float64),
+            fm is not None and fm.kind == "logistic",
+            1e-3 if fm is None else float(fm.p_min),
+        )  # fmt: skip
+
+    def load(self, k: int) -> None:
+        """Copy env copy ``k``'s state, just after its ``reset``, into the stacks."""
+        env = self.envs[k]
+        i = env.fast_mover
+        assert i is not None
+        if env.t != 0 or env._mover_row is not None:
+            raise RuntimeError(f"env copy {k} must be loaded right after its reset")
+        if self._const is None:
+            self._const = self._constants(env)
+        self.mover[k] = i
+        self.t[k] = env.t
+        self.positions_m[k] = env.positions_m
+        self.start_m[k] = env.start_m
+        assert env._geometry is not None and env._co_table is not None
+        self.disp_m[k] = env._geometry.disp_m
+        self.dist2_m2[k] = env._geometry.dist2_m2
+        table = env._co_table
+        if table.shape[1] > self.co_table.shape[2]:
+            grown = np.full((self.k, self.n, table.shape[1]), -1, dtype=np.int64)
+            grown[:, :, : self.co_table.shape[2]] = self.co_table
+            self.co_table = grown
+        self.co_table[k] = -1
+        self.co_table[k, :, : table.shape[1]] = table
+        self.target[k] = env.target
+        self.p[k] = env.p
+        row = env.links.mover_row(i, env.positions_m)
+        args = row._args
+        self.los_row[k] = args[3]
+        self.gain_row_db[k] = args[4]
+        self.level_db[k] = kernels._levels_db(args[7], args[8])
+        s = self.scalars[k]
+        s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.u[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
+        s[BASE_PREV] = env._base_prev[i]
+        if env.layout.version >= 1:
+            s[U_NOW], s[U_PREV], s[U_START], s[U_BEST] = env._u_now[i], env._u_prev[i], env._u_start[i], env._u_best[i]
+            self.plan_m[k] = env.plan_m[i]
+            self.best_m[k] = env._best_m[i]
+        self.loaded[k] = True
+
+    def step(
+        self, actions: NDArray[np.floating], active: NDArray[np.bool_] | None = None
+    ) -> tuple[NDArray[np.float32], FloatArray, NDArray[np.bool_], FloatArray]:
+        """Step the copies (all, or those where ``active``) with ``actions`` [K, 2].
+
+        Returns:
+            observations [K, size] float32, rewards [K], truncations [K] (the episode ended) and the
+            info table [K, 8] (columns :data:`~cv2x_marl.env.mobility_env.INFO_KEYS`); rows of
+            inactive copies are left as they were (zeros in new arrays).
+        """
+        act = np.ascontiguousarray(actions, dtype=np.float64)
+        if act.shape != (self.k, 2):
+            raise ValueError(f"actions must have shape ({self.k}, 2), got {act.shape}")
+        mask = np.ones(self.k, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+        bad = mask & ~np.isfinite(act).all(axis=1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"action of copy {k} is not finite: {act[k].tolist()}")
+        if not self.loaded[mask].all():
+            k = int(np.flatnonzero(mask & ~self.loaded)[0])
+            raise RuntimeError(f"env copy {k} has no episode: reset and load it first")
+        assert self._const is not None  # set by the first load
+        done_before = mask & (self.t >= self._const[9])
+        if done_before.any():
+            raise RuntimeError(f"step() called on a finished episode of copy {int(np.flatnonzero(done_before)[0])}")
+        obs = np.zeros((self.k, self.layout.size), dtype=np.float32)
+        rewards = np.zeros(self.k)
+        dones = np.zeros(self.k, dtype=bool)
+        info = np.zeros((self.k, 8))
+        (period, wb1, range2, model, per_sinr, per, thr, sens, *opts) = self._const
+        _mover_steps(  # type: ignore[call-arg]  # numba's Dispatcher hides the signature
+            mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
+            self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,
+            self.level_db, self.scalars, period, wb1, range2, model, per_sinr, per, thr, sens, *opts,
+            obs, rewards, dones, info,
+        )  # fmt: skip
+        return obs, rewards, dones, info
+
+    def sync(self, k: int) -> None:
+        """Write copy ``k``'s batched state back into its env object (positions, links, utilities), so
+        that the env's own methods (``state()``, ``render()``) see where the batch has moved it."""
+        env = self.envs[k]
+        i = int(self.mover[k])
+        env.positions_m = self.positions_m[k].copy()
+        env.t = int(self.t[k])
+        env.p = self.p[k].copy()
+        env._geometry = type(env._geometry)(self.disp_m[k].copy(), self.dist2_m2[k].copy())  # type: ignore[misc]
+        s = self.scalars[k]
+        env.u[i], env.prr[i], env.jain[i] = s[U], s[PRR], s[JAIN]
+        env._base_prev[i] = s[BASE_PREV]
+        if env.layout.version >= 1:
+            env._u_now[i], env._u_prev[i], env._u_best[i] = s[U_NOW], s[U_PREV], s[U_BEST]
+            env._best_m[i] = self.best_m[k]
+        if env.t >= env.max_cycles:
+            env.agents = []
+            env._live = set()
+
+
+def _signature(env: MobilityEnv) -> tuple[Any, ...]:
+    """What must agree between the copies of a batch (scenario, options, layout, model)."""
+    return (
+        repr(env.config),
+        env.truth_los,
+        env.max_cycles,
+        env.max_step_m,
+        env.settle_steps,
+        env.max_drift_m,
+        env.roi,
+        env.action_mode,
+        env.normalise_reward,
+        env.reward_form,
+        env.p_min,
+        repr(env.layout),
+        env.model_name,
+        env.fast_mover,
+    )

@@ -1,0 +1,241 @@
+"""Gymnasium's ``vector_entry_point`` for ``cv2x/SingleMover-v*``: K copies stepped by one compiled call.
+
+    envs = gymnasium.make_vec("cv2x/SingleMover-v2", num_envs=16, vectorization_mode="vector_entry_point")
+
+returns a :class:`SingleMoverVectorEnv` (``-v1``: :class:`SingleMoverVectorEnvV1`, ``-v2``:
+:class:`SingleMoverVectorEnvV2`). It follows Gymnasium's vector API like ``SyncVectorEnv`` over the
+same single-agent envs, and gives the same results bit for bit (``tests/env/test_vector.py``):
+
+* seeding: ``reset(seed=s)`` resets copy k with seed ``s + k`` (a list gives one seed per copy,
+  None draws fresh ones); a copy's later episodes draw their seeds from its own generator, so the
+  same seeded first reset gives the same sequence of episodes in every copy, across autoresets;
+* autoreset: ``autoreset_mode`` ``NextStep`` (Gymnasium's default: the step after an episode ended
+  resets that copy, ignores its action and returns reward 0), ``SameStep`` (the copy is reset in
+  the step that ended it; ``infos["final_obs"]`` and ``infos["final_info"]`` hold what the episode
+  ended with) or ``Disabled`` (reset copies yourself with ``options={"reset_mask": mask}``);
+* infos: every key of the single env's info (:data:`~cv2x_marl.env.mobility_env.INFO_KEYS`) as an
+  array over the copies, with its ``_key`` mask.
+
+Steps go through :class:`~cv2x_marl.env.batched.MoverBatch` (one numba call for all copies) when the
+env options allow it (:func:`~cv2x_marl.env.batched.batch_problem`: no rendering, no
+``replan_every``, WINNER+ B1 links); otherwise through each copy's own ``step`` (the same results,
+a loop over copies), and :attr:`SingleMoverVectorEnv.batched` says which.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from numpy.typing import NDArray
+
+from cv2x_marl.checks import is_int
+from cv2x_marl.env.batched import MoverBatch, batch_problem
+from cv2x_marl.env.mobility_env import INFO_KEYS
+from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
+
+_MODES = ", ".join(m.value for m in AutoresetMode)
+
+
+class SingleMoverVectorEnv(VectorEnv):
+    """K copies of ``cv2x/SingleMover-v0`` as one Gymnasium ``VectorEnv`` (module docstring).
+
+    Args:
+        num_envs: K, the number of copies.
+        autoreset_mode: ``NextStep`` (default), ``SameStep`` or ``Disabled`` (or the
+            :class:`gymnasium.vector.AutoresetMode`).
+        render_mode: passed to every copy (rendering turns the batched step off).
+        **kwargs: env arguments of :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, the same for
+            every copy (``max_cycles``, ``overrides``, ...).
+    """
+
+    single_env: ClassVar[type[SingleMoverEnv]] = SingleMoverEnv
+    metadata: dict[str, Any] = {  # noqa: RUF012 - Gymnasium declares it so (per instance: the autoreset mode)
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 10,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if not is_int(num_envs) or num_envs < 1:
+            raise ValueError(f"invalid num_envs={num_envs!r}; allowed: an integer >= 1")
+        try:
+            mode = autoreset_mode if isinstance(autoreset_mode, AutoresetMode) else AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ValueError(f"invalid autoreset_mode={autoreset_mode!r}; allowed: {_MODES}") from None
+        self.envs = [self.single_env(render_mode=render_mode, **kwargs) for _ in range(int(num_envs))]
+        self.num_envs = int(num_envs)
+        self.autoreset_mode = mode
+        self.metadata = {**type(self).metadata, "autoreset_mode": mode}
+        self.render_mode = render_mode
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space = self.envs[0].action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        #: why the copies are stepped one by one (None: they are stepped in one compiled call)
+        self.not_batched_because = batch_problem(self.envs[0].par)
+        self.batch = MoverBatch([e.par for e in self.envs]) if self.not_batched_because is None else None
+        self._obs = np.zeros((self.num_envs, self.envs[0].par.layout.size), dtype=np.float32)
+        self._ended = np.zeros(self.num_envs, dtype=bool)
+        self._started = np.zeros(self.num_envs, dtype=bool)
+
+    @property
+    def batched(self) -> bool:
+        """True when steps go through one compiled call for all copies."""
+        return self.batch is not None
+
+    # ------------------------------------------------------------------ reset
+    def _reset_copy(self, k: int, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        obs, info = self.envs[k].reset(seed=seed, options=options)
+        if self.batch is not None:
+            self.batch.load(k)
+        self._obs[k] = obs
+        self._ended[k] = False
+        self._started[k] = True
+        return info
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        """Reset every copy (or those of ``options["reset_mask"]``); seeds as ``SyncVectorEnv``."""
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif is_int(seed):
+            seeds = [int(seed) + k for k in range(self.num_envs)]  # type: ignore[arg-type]
+        elif isinstance(seed, list | tuple) and len(seed) == self.num_envs:
+            seeds = list(seed)
+        else:
+            raise ValueError(
+                f"invalid reset seed={seed!r}; allowed: None, an integer, or a list of {self.num_envs} seeds"
+            )
+        options = dict(options) if options else None
+        mask = np.ones(self.num_envs, dtype=bool)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options.pop("reset_mask"))
+            if mask.shape != (self.num_envs,) or mask.dtype != np.bool_ or not mask.any():
+                raise ValueError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with a True")
+            options = options or None
+        infos: dict[str, Any] = {}
+        for k in np.flatnonzero(mask):
+            infos = self._add_info(infos, self._reset_copy(int(k), seeds[k], options), int(k))
+        return self._obs.copy(), infos
+
+    # ------------------------------------------------------------------- step
+    def step(
+        self, actions: Any
+    ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
+        """Step every copy with ``actions`` [K, 2] (autoreset as :attr:`autoreset_mode`)."""
+        try:
+            act = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"actions must be numeric with shape ({self.num_envs}, 2), got {actions!r}") from None
+        if act.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {act.shape}")
+        if not self._started.all():
+            raise RuntimeError("step() called before reset(): call reset() first")
+        k_count = self.num_envs
+        reset_now = np.zeros(k_count, dtype=bool)
+        if self._ended.any():
+            if self.autoreset_mode != AutoresetMode.NEXT_STEP:
+                k = int(np.flatnonzero(self._ended)[0])
+                raise RuntimeError(
+                    f"copy {k} finished its episode: reset it with options={{'reset_mask': mask}} "
+                    "(autoreset_mode Disabled)"
+                )
+            reset_now = self._ended.copy()
+        stepping = ~reset_now
+        rewards = np.zeros(k_count)
+        truncations = np.zeros(k_count, dtype=bool)
+        table = np.zeros((k_count, len(INFO_KEYS)))
+        if self.batch is not None:
+            obs, rew, done, info = self.batch.step(act, stepping)
+            self._obs[stepping] = obs[stepping]
+            rewards[stepping] = rew[stepping]
+            truncations[stepping] = done[stepping]
+            table[stepping] = info[stepping]
+        else:
+            for c in np.flatnonzero(stepping):
+                ob, r, _term, trunc, inf = self.envs[c].step(act[c])
+                self._obs[c], rewards[c], truncations[c] = ob, r, trunc
+                table[c] = _info_row(inf)
+        extra: dict[str, Any] = {}
+        for c in np.flatnonzero(reset_now):  # NextStep: the copies that ended last step start again
+            table[c] = _info_row(self._reset_copy(int(c), None, None))
+        if self.autoreset_mode == AutoresetMode.SAME_STEP:
+            for c in np.flatnonzero(truncations):
+                final_info = dict(zip(INFO_KEYS, table[c].tolist(), strict=True))
+                extra = self._add_info(extra, {"final_obs": self._obs[c].copy(), "final_info": final_info}, int(c))
+                table[c] = _info_row(self._reset_copy(int(c), None, None))
+        else:
+            self._ended = truncations.copy()
+        infos: dict[str, Any] = {}
+        everyone = np.ones(k_count, dtype=bool)
+        for col, key in enumerate(INFO_KEYS):
+            infos[key] = table[:, col].copy()
+            infos[f"_{key}"] = everyone.copy()
+        infos.update(extra)
+        return self._obs.copy(), rewards, np.zeros(k_count, dtype=bool), truncations, infos
+
+    # ------------------------------------------------------------ the copies
+    def _synced(self) -> list[SingleMoverEnv]:
+        """The copies with the batch's state written back into them (what their methods then see)."""
+        if self.batch is not None:
+            for k in np.flatnonzero(self._started):
+                self.batch.sync(int(k))
+        return self.envs
+
+    def render(self) -> tuple[Any, ...] | None:
+        """Every copy's frame (None each unless ``render_mode`` was given)."""
+        return tuple(env.render() for env in self._synced())
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
+        """Call method ``name`` (or read attribute ``name``) of every copy. The copies see the batch's
+        current state; methods that change a copy (``step``) are for the unbatched mode only."""
+        out = []
+        for env in self._synced():
+            attr = getattr(env, name)
+            out.append(attr(*args, **kwargs) if callable(attr) else attr)
+        return tuple(out)
+
+    def get_attr(self, name: str) -> tuple[Any, ...]:
+        """Attribute ``name`` of every copy."""
+        return tuple(getattr(env, name) for env in self._synced())
+
+    def set_attr(self, name: str, values: Any) -> None:
+        """Set attribute ``name`` of every copy (one value for all, or a list of K)."""
+        if not isinstance(values, list | tuple):
+            values = [values] * self.num_envs
+        if len(values) != self.num_envs:
+            raise ValueError(f"set_attr needs one value or {self.num_envs} values, got {len(values)}")
+        for env, value in zip(self.envs, values, strict=True):
+            setattr(env, name, value)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for env in getattr(self, "envs", []):  # also when __init__ failed
+            env.close()
+
+
+def _info_row(info: dict[str, Any]) -> list[float]:
+    """The values of a single env's info in :data:`INFO_KEYS` order."""
+    return [info[key] for key in INFO_KEYS]
+
+
+class SingleMoverVectorEnvV1(SingleMoverVectorEnv):
+    """K copies of ``cv2x/SingleMover-v1`` (see :class:`SingleMoverVectorEnv`)."""
+
+    single_env = SingleMoverEnvV1
+
+
+class SingleMoverVectorEnvV2(SingleMoverVectorEnv):
+    """K copies of ``cv2x/SingleMover-v2`` (see :class:`SingleMoverVectorEnv`)."""
+
+    single_env = SingleMoverEnvV2
