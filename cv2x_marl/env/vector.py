@@ -156,7 +156,10 @@ class SingleMoverVectorEnv(VectorEnv):
         rewards = np.zeros(k_count)
         truncations = np.zeros(k_count, dtype=bool)
         table = np.zeros((k_count, len(INFO_KEYS)))
-        if self.batch is not None:
+        if self.batch is not None and not reset_now.any():  # the usual step: every copy moves
+            obs, rewards, truncations, table = self.batch.step(act)
+            self._obs[:] = obs
+        elif self.batch is not None:
             obs, rew, done, info = self.batch.step(act, stepping)
             self._obs[stepping] = obs[stepping]
             rewards[stepping] = rew[stepping]
@@ -178,10 +181,11 @@ class SingleMoverVectorEnv(VectorEnv):
         else:
             self._ended = truncations.copy()
         infos: dict[str, Any] = {}
-        everyone = np.ones(k_count, dtype=bool)
+        columns = np.ascontiguousarray(table.T)  # a fresh array: each row below is the caller's own
+        masks = np.ones((len(INFO_KEYS), k_count), dtype=bool)
         for col, key in enumerate(INFO_KEYS):
-            infos[key] = table[:, col].copy()
-            infos[f"_{key}"] = everyone.copy()
+            infos[key] = columns[col]
+            infos[f"_{key}"] = masks[col]
         infos.update(extra)
         return self._obs.copy(), rewards, np.zeros(k_count, dtype=bool), truncations, infos
 
