@@ -347,6 +347,26 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sumo_export(args: argparse.Namespace) -> int:
+    from cv2x_marl.runs import run_folder
+    from cv2x_marl.sim.sumo import export_scenario
+
+    cfg = _scenario(args)
+    params = {"seed": args.seed, "seconds": args.seconds, "parquet": args.parquet}
+    with run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
+        summary = export_scenario(cfg, args.seed, args.out, args.seconds, args.parquet)
+    if args.json:
+        _print_json(summary)
+    else:
+        print(
+            f"SUMO {summary['sumo_version']} scenario (seed {summary['seed']}, SUMO seed {summary['sumo_seed']}): "
+            f"{summary['n_vehicles']} vehicles over {summary['n_timesteps']} steps of {summary['step_s']:g} s"
+        )
+        for name in summary["files"]:
+            print(f"wrote {args.out / name}")
+    return 0
+
+
 def _cmd_config(args: argparse.Namespace) -> int:
     if args.markdown:
         sys.stdout.write(config_markdown())
@@ -537,6 +557,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_baselines)
+
+    p = sub.add_parser("sumo", help="SUMO mobility scenarios (the 'sumo' extra; docs/mobility.md)")
+    sumo_sub = p.add_subparsers(dest="sumo_command", required=True)
+    p = sumo_sub.add_parser(
+        "export", help="write the generated SUMO scenario of a preset and seed (net, routes, .sumocfg, FCD trace)"
+    )
+    _add_scenario_args(p)
+    p.add_argument("--seed", type=SEED, default=0, help="run seed (the scenario `simulate --seed` would run)")
+    p.add_argument(
+        "--seconds",
+        type=POSITIVE_FLOAT,
+        default=None,
+        help="SUMO seconds of FCD trace (default: sim.warmup_subframes + sim.n_subframes, plus 60 s)",
+    )
+    p.add_argument("--parquet", action="store_true", help="also write the trace as fcd.parquet")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=_cmd_sumo_export)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)

@@ -62,13 +62,17 @@ def _key(
     hi: float | None = None,
     choices: tuple[str, ...] | None = None,
     lo_open: bool = False,
+    allowed: str | None = None,
 ) -> Any:
-    """A dataclass field carrying its documentation and its allowed range."""
-    meta = {"doc": doc, "unit": unit, "lo": lo, "hi": hi, "choices": choices, "lo_open": lo_open}
+    """A dataclass field carrying its documentation and its allowed range (``allowed``: the
+    allowed values in words, for free-text keys such as file paths)."""
+    meta = {"doc": doc, "unit": unit, "lo": lo, "hi": hi, "choices": choices, "lo_open": lo_open, "allowed": allowed}
     return field(default=default, metadata=meta)
 
 
 def _allowed(meta: Mapping[str, Any]) -> str:
+    if meta.get("allowed"):
+        return str(meta["allowed"])
     if meta["choices"]:
         return " | ".join(meta["choices"])
     lo, hi = meta["lo"], meta["hi"]
@@ -132,7 +136,8 @@ def _coerce(key: str, value: Any, tp: type, meta: Mapping[str, Any]) -> Any:
             raise ConfigError(f"{key}: expected a finite number in {_allowed(meta)}, got {value!r}")
     elif tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected one of {_allowed(meta)}, got {value!r}")
+            what = _allowed(meta) if meta.get("allowed") else f"one of {_allowed(meta)}"
+            raise ConfigError(f"{key}: expected {what}, got {value!r}")
         if meta["choices"] and value not in meta["choices"]:
             raise ConfigError(f"{key}: {value!r} is not allowed; allowed values: {_allowed(meta)}")
         return value
@@ -197,6 +202,26 @@ class VehiclesConfig(Section):
     )
     speed_min_mps: float = _key(4.17, "Lowest vehicle speed (drawn uniformly per vehicle)", "m/s", 0.0, 100.0)
     speed_max_mps: float = _key(16.67, "Highest vehicle speed", "m/s", 0.0, 100.0)
+    mobility: str = _key(
+        "model",
+        "Where vehicle motion comes from: model: the random-speed lane model with wrap-around; sumo: a SUMO "
+        "scenario stepped in lockstep through libsumo (vehicles.sumo_config, or one generated from the road "
+        "section); trace: replay of a SUMO FCD trace (vehicles.trace_file). sumo and trace track the first "
+        "N vehicles in the network (docs/mobility.md; the 'sumo' extra)",
+        choices=("model", "sumo", "trace"),
+    )
+    sumo_config: str | None = _key(
+        None,
+        "vehicles.mobility=sumo: the SUMO scenario (.sumocfg) to run; null: generate one from the road section "
+        "(road.kind=grid; random-walk demand of N vehicles at speeds in [speed_min_mps, speed_max_mps])",
+        allowed="path to a .sumocfg file, or null",
+    )
+    trace_file: str | None = _key(
+        None,
+        "vehicles.mobility=trace: a SUMO FCD trace (XML from --fcd-output, or parquet with columns time, id, "
+        "x, y, angle, speed), interpolated linearly to traffic.rri_ms",
+        allowed="path to an .xml or .parquet file, or null",
+    )
 
     def _check(self) -> None:
         if self.speed_min_mps > self.speed_max_mps:
@@ -204,6 +229,12 @@ class VehiclesConfig(Section):
                 f"vehicles.speed_min_mps ({self.speed_min_mps:g}) must not exceed "
                 f"vehicles.speed_max_mps ({self.speed_max_mps:g})"
             )
+        if self.mobility == "trace" and not self.trace_file:
+            raise ConfigError("vehicles.mobility=trace needs vehicles.trace_file (the FCD trace to replay)")
+        for key in ("sumo_config", "trace_file"):
+            value = getattr(self, key)
+            if value is not None and not value.strip():
+                raise ConfigError(f"vehicles.{key}: an empty path; give a file or null")
 
 
 @dataclass(frozen=True)
@@ -468,6 +499,11 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "metrics": {"max_distance_m": 1000.0},
         "sim": {"n_subframes": 5000},
     },
+    # The paper's scenario with vehicles driven by SUMO: the 4 x 4 two-way grid of the 450 m region,
+    # generated with netgenerate; 21 vehicles on random walks (docs/mobility.md). Needs the `sumo` extra.
+    "sumo-grid": {
+        "vehicles": {"mobility": "sumo"},
+    },
 }
 
 
@@ -501,7 +537,7 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset (``paper`` or ``highway``)."""
+    """A named preset (``paper``, ``highway`` or ``sumo-grid``)."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     return from_dict(PRESETS[name])
@@ -548,11 +584,14 @@ def config_markdown() -> str:
         "follow the YAML 1.2 core schema (`5.9e9` is a number, `010` is 10, `1:40` and `yes` are strings;",
         "`cv2x_marl/yamlcore.py`). A scenario has at most 100,000 vehicles, counted after",
         "`vehicles.density_veh_per_m` x road length.",
-        "Defaults are the `paper` preset (Table 1 of the paper); the `highway` preset overrides:",
-        "",
+        "Defaults are the `paper` preset (Table 1 of the paper); the other presets override:",
     ]
-    for section, values in PRESETS["highway"].items():
-        lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))
+    for name, overrides in PRESETS.items():
+        if name == "paper":
+            continue
+        lines += ["", f"`{name}`:", ""]
+        for section, values in overrides.items():
+            lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))
     hints_cache: dict[type, dict[str, Any]] = {}
     for name, cls in _SECTIONS.items():
         hints = hints_cache.setdefault(cls, typing.get_type_hints(cls))

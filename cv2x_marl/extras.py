@@ -3,7 +3,8 @@
 The base install (``pip install cv2x_marl``) is the simulator and the envs (numpy, numba, scipy,
 gymnasium, pettingzoo, ...). Training and loading learned movers need the ``train`` extra (torch,
 stable-baselines3, tensorboard); sweeps and ``dataset --ray`` need the ``ray`` extra (Ray Tune and
-RLlib); the TorchRL example the ``torchrl`` extra; ``make install`` installs every extra under ``constraints.txt``.
+RLlib); the TorchRL example the ``torchrl`` extra; SUMO mobility (``vehicles.mobility=sumo``) the
+``sumo`` extra (eclipse-sumo, libsumo, sumolib, traci); ``make install`` installs every extra under ``constraints.txt``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ EXTRA_OF = {
     "pandas": "train",
     "ray": "ray",
     "torchrl": "torchrl",
+    "sumo": "sumo",
+    "libsumo": "sumo",
+    "sumolib": "sumo",
+    "traci": "sumo",
 }
 
 

@@ -5,6 +5,10 @@ A vehicle is ``(axis, direction, road, lane, s_m, speed_mps)``: it drives along 
 coordinate ``s_m`` along the road. The area wraps around, so the vehicle count stays fixed.
 At a grid crossing a vehicle goes straight, turns left or right with the configured
 probabilities (paper reading: 0.5 / 0.25 / 0.25) and keeps its lane index.
+
+With ``vehicles.mobility`` = ``sumo`` or ``trace`` the vehicles come from SUMO instead
+(:mod:`cv2x_marl.sim.sumo`) and their state is a :class:`TrackedState` of positions and velocity
+vectors; :func:`positions_m` and :func:`velocities_mps` accept either kind of state.
 """
 
 from __future__ import annotations
@@ -35,8 +39,40 @@ class VehicleState:
         return int(self.s_m.shape[0])
 
 
-def positions_m(road: Road, st: VehicleState) -> FloatArray:
+@dataclass(frozen=True)
+class TrackedState:
+    """Vehicle state read from an external mobility source (SUMO lockstep or a trace replay).
+
+    Attributes:
+        pos_m: [N, 2] positions (x, y) in metres, SUMO network coordinates (our frame).
+        vel_mps: [N, 2] velocity vectors in m/s.
+        odometer_m: [N] distance covered since the source started (sum of the straight
+            displacements between periods; drives the shadowing decorrelation).
+        time_s: source time of the state (SUMO / trace seconds).
+    """
+
+    pos_m: FloatArray
+    vel_mps: FloatArray
+    odometer_m: FloatArray
+    time_s: float
+
+    @property
+    def n(self) -> int:
+        return int(self.pos_m.shape[0])
+
+    @property
+    def speed_mps(self) -> FloatArray:
+        """[N] speeds."""
+        return np.asarray(np.hypot(self.vel_mps[:, 0], self.vel_mps[:, 1]))
+
+
+MobilityState = VehicleState | TrackedState
+
+
+def positions_m(road: Road, st: MobilityState) -> FloatArray:
     """[N, 2] positions (x, y) in metres."""
+    if isinstance(st, TrackedState):
+        return st.pos_m.copy()
     across = road.road_pos_m[st.road] + road.lane_offset_m(st.direction, st.lane) * np.where(st.axis == 0, -1, 1)
     pos = np.empty((st.n, 2))
     pos[:, 0] = np.where(st.axis == 0, st.s_m, across)
@@ -44,8 +80,10 @@ def positions_m(road: Road, st: VehicleState) -> FloatArray:
     return pos
 
 
-def velocities_mps(st: VehicleState) -> FloatArray:
+def velocities_mps(st: MobilityState) -> FloatArray:
     """[N, 2] velocity vectors in m/s."""
+    if isinstance(st, TrackedState):
+        return st.vel_mps.copy()
     out = np.zeros((st.n, 2))
     out[np.arange(st.n), st.axis] = st.direction * st.speed_mps  # along the vehicle's axis
     return out

@@ -11,6 +11,10 @@ the part of it a ``run`` covers) is one batch of array operations over vehicle p
     -> sensing (S-RSSI, SCI RSRP); at the end of the period: SPS counters and reselection,
        then mobility.
 
+Mobility (``vehicles.mobility``): the lane model of :mod:`cv2x_marl.sim.mobility` (default), or a
+SUMO scenario stepped once per period through libsumo, or a replayed SUMO FCD trace
+(:mod:`cv2x_marl.sim.sumo`, imported only then).
+
 Interference at receiver b on link a -> b is the sum over the other vehicles transmitting on
 a's subframe and subchannel (optionally in-band emission from the other subchannels of that
 subframe); b receives nothing in a subframe where it transmits (half duplex).
@@ -21,6 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +38,9 @@ from cv2x_marl.sim.memory import check_memory
 from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
 from cv2x_marl.sim.road import Road
 from cv2x_marl.units import db_to_linear, noise_power_dbm
+
+if TYPE_CHECKING:
+    from cv2x_marl.sim.sumo import MobilitySource
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -150,6 +158,11 @@ class Simulator:
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         iu, ju = np.triu_indices(self.n, 1)
         self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
+        self._source: MobilitySource | None = None
+        if config.vehicles.mobility != "model":  # SUMO installed, files there: refuse now, not at reset
+            from cv2x_marl.sim import sumo
+
+            sumo.check_source(config)
         self._ready = False
 
     # ------------------------------------------------------------------ state
@@ -157,7 +170,16 @@ class Simulator:
         """Place the vehicles, draw initial resources, run the warm-up; return the snapshot."""
         cfg = self.config
         self.rng = RngStreams.from_seed(seed)
-        self.state = mobility.place(self.road, cfg.vehicles, self.n, self.rng.placement)
+        self._ready = False  # until this reset completes (starting SUMO can fail)
+        self.close()
+        self.state: mobility.MobilityState
+        if cfg.vehicles.mobility == "model":
+            self.state = mobility.place(self.road, cfg.vehicles, self.n, self.rng.placement)
+        else:  # SUMO lockstep or trace replay (docs/mobility.md); draws from the mobility stream only
+            from cv2x_marl.sim import sumo
+
+            self._source = sumo.open_source(cfg, self.rng.mobility)
+            self.state = self._source.state
         self.shadowing = channel.Shadowing(self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing)
         if cfg.traffic.synchronous:
             self.generation_slot = np.zeros(self.n, dtype=np.int64)
@@ -224,6 +246,21 @@ class Simulator:
             rri_ms=self.rri,
             n_subchannels=self.n_sub,
         )
+
+    @property
+    def vehicle_ids(self) -> list[str] | None:
+        """SUMO (or trace) IDs of the vehicles, vehicle ``i`` first; None with ``vehicles.mobility=model``."""
+        return None if self._source is None else list(self._source.ids)
+
+    def close(self) -> None:
+        """Stop the SUMO simulation of ``vehicles.mobility=sumo`` (nothing to do otherwise; idempotent).
+
+        ``reset`` starts a new one; libsumo holds one simulation per process, so a second simulator
+        with SUMO mobility in the same process takes it over from the first.
+        """
+        if self._source is not None:
+            self._source.close()
+            self._source = None
 
     def _check_ready(self) -> None:
         if not self._ready:
@@ -542,5 +579,9 @@ class Simulator:
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
         self._new_period_buffers()
-        self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
+        if self._source is not None:
+            self.state = self._source.advance()
+        else:
+            assert isinstance(self.state, mobility.VehicleState)
+            self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
         self._geometry = None

@@ -1,0 +1,904 @@
+"""SUMO mobility: generated scenarios, libsumo lockstep and FCD trace replay (issue 14).
+
+Three pieces (the simulator imports this module only when ``vehicles.mobility`` is ``sumo`` or
+``trace``; the first two need the ``sumo`` extra, trace replay only the base install):
+
+* **Generated scenarios.** :func:`build_scenario` turns the ``road`` section into a SUMO network
+  with ``netgenerate`` (the paper's grid: ``road.n_roads_per_axis`` two-way roads per axis whose
+  centre lines lie at ``(i + 1/2) * length_m / n`` like :class:`cv2x_marl.sim.road.Road`, stubs to
+  the region's edge, ``road.lanes_per_direction`` lanes of ``road.lane_width_m``, speed limit
+  ``vehicles.speed_max_mps``, priority junctions, U-turns only at dead ends) and writes the
+  demand: ``N`` vehicles departing at t = 0 from free random spots (``departPos="random_free"``,
+  SUMO's draw under our seed), each driving a random walk over the network with the paper's turning probabilities
+  (``road.p_straight`` / ``p_left`` / ``p_right``; a U-turn only at the dead ends on the region's
+  edge) and a desired speed drawn uniformly in ``[speed_min_mps, speed_max_mps]``. This stands in
+  for SUMO's ``randomTrips.py``: its trips leave the network at the fringe, which a fixed
+  vehicle count cannot follow. Every random draw comes from the generator handed in (the
+  simulator's ``mobility`` stream) and SUMO's ``--seed`` is drawn from it too. Generated files
+  are cached under a content-hash key in :func:`cache_dir` (``$CV2X_MARL_SUMO_CACHE``, else
+  ``$XDG_CACHE_HOME/cv2x_marl/sumo`` or ``~/.cache/cv2x_marl/sumo``), written into a temporary
+  folder and renamed into place.
+* **Lockstep** (:class:`SumoLockstep`): libsumo runs the scenario in this process, one SUMO step
+  per reservation period; after every step the tracked vehicles' positions (SUMO network
+  coordinates = ours, in metres), speeds and headings are read back through a subscription.
+* **Trace replay** (:class:`TraceReplay`): a recorded SUMO FCD trace (XML from ``--fcd-output``,
+  or parquet with the same columns) is interpolated linearly to the reservation period.
+
+The fixed vehicle count: both sources track the first ``N`` vehicles (ordered by departure time,
+then ID) at the first instant when at least ``N`` are in the network, and that instant is time
+zero. A tracked vehicle that leaves the network (arrives, or is teleported) ends the run with a
+:class:`SumoError`; generated scenarios give every vehicle a route for :data:`ROUTE_HORIZON_S`
+seconds of driving and disable teleports, so they keep all ``N``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.extras import missing_extra, require
+from cv2x_marl.sim.mobility import TrackedState
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: environment variable that overrides where generated scenarios are cached
+CACHE_ENV = "CV2X_MARL_SUMO_CACHE"
+#: seconds of driving (at the highest desired speed) each generated route covers
+ROUTE_HORIZON_S = 3600.0
+#: SUMO seconds the lockstep waits for ``N`` vehicles to be in the network before giving up
+MAX_FILL_S = 3600.0
+#: file names of a generated (or exported) scenario
+NET_FILE, ROUTE_FILE, CFG_FILE = "net.net.xml", "routes.rou.xml", "scenario.sumocfg"
+#: format version of the generated files (part of every cache key)
+_GENERATOR_VERSION = 2
+
+# TraCI variable ids (traci.constants), fixed by the protocol
+_VAR_SPEED, _VAR_POSITION, _VAR_ANGLE = 0x40, 0x42, 0x43
+
+
+class SumoError(ValueError):
+    """A SUMO scenario or trace cannot be used (the message names the file or key)."""
+
+
+# ------------------------------------------------------------------------------------------ install
+def sumo_home() -> Path:
+    """The SUMO installation of the ``eclipse-sumo`` wheel (binaries under ``bin/``).
+
+    Raises:
+        MissingExtraError: the ``sumo`` extra is not installed.
+    """
+    mod = require("sumo", "vehicles.mobility=sumo")
+    home = getattr(mod, "SUMO_HOME", None)
+    if home is None:
+        raise missing_extra(
+            "sumo", "vehicles.mobility=sumo (the importable 'sumo' module is not the eclipse-sumo wheel)"
+        )
+    return Path(home)
+
+
+def sumo_version() -> str:
+    """Version of the installed ``eclipse-sumo`` wheel."""
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("eclipse-sumo")
+    except importlib.metadata.PackageNotFoundError:
+        sumo_home()  # raises the missing-extra error
+        return "unknown"
+
+
+def _tool(name: str) -> Path:
+    path = sumo_home() / "bin" / name
+    if not path.is_file():
+        raise SumoError(f"SUMO tool {name} not found at {path}; reinstall the 'sumo' extra")
+    return path
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child
+    """Linux: the child gets SIGKILL when this process dies, so no SUMO process outlives ours."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+def run_tool(name: str, args: Sequence[str], cwd: Path | None = None) -> None:
+    """Run a SUMO binary (``netgenerate``, ``sumo``) to completion.
+
+    The child dies with this process (Linux), and ``subprocess.run`` kills it on an interrupt.
+
+    Raises:
+        SumoError: the tool failed (its error output is in the message).
+    """
+    cmd = [str(_tool(name)), *args]
+    env = dict(os.environ, SUMO_HOME=str(sumo_home()))
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, preexec_fn=_die_with_parent)
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip()[-2000:]
+        raise SumoError(f"{name} failed (exit {proc.returncode}): {' '.join(cmd)}\n{tail}")
+
+
+def import_libsumo() -> Any:
+    """``libsumo``, imported quietly (its import prints a pyarrow ABI note we do not need:
+    libsumo's own parquet output is not used)."""
+    if "libsumo" in sys.modules:
+        return sys.modules["libsumo"]
+    with contextlib.redirect_stdout(io.StringIO()):
+        return require("libsumo", "vehicles.mobility=sumo")
+
+
+# ------------------------------------------------------------------------------------------- cache
+def cache_dir() -> Path:
+    """Where generated scenarios are cached: ``$CV2X_MARL_SUMO_CACHE``, else the user cache dir."""
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "cv2x_marl" / "sumo"
+
+
+def content_key(data: Any) -> str:
+    """Hex SHA-256 (24 digits) of ``data`` as canonical JSON."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def cached(kind: str, key_data: Any, build: Callable[[Path], None]) -> Path:
+    """The cache folder for ``key_data``, built by ``build(folder)`` when absent.
+
+    ``build`` writes into a temporary folder, renamed into place when it returns, so a folder in
+    the cache is always complete; of two processes building the same key, one rename wins.
+    """
+    root = cache_dir()
+    final = root / f"{kind}-{content_key(key_data)}"
+    if final.is_dir():
+        return final
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=root))
+    try:
+        build(tmp)
+        (tmp / "key.json").write_text(json.dumps(key_data, sort_keys=True, indent=1) + "\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp creates 0700; give the folder the usual mode
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            if not final.is_dir():
+                raise
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return final
+
+
+# ---------------------------------------------------------------------------------------- scenario
+@dataclass(frozen=True)
+class Scenario:
+    """A SUMO scenario ready to run.
+
+    Attributes:
+        sumocfg: the ``.sumocfg`` file.
+        seed: SUMO's ``--seed`` (drawn from our seed).
+        step_s: SUMO step length (the reservation period).
+        generated: True when built from the ``road`` section (else the user's ``vehicles.sumo_config``).
+    """
+
+    sumocfg: Path
+    seed: int
+    step_s: float
+    generated: bool
+
+
+def netgenerate_args(cfg: ScenarioConfig) -> list[str]:
+    """``netgenerate`` arguments for the ``road`` section (grid only in this version).
+
+    Raises:
+        ConfigError: a road kind without a generated SUMO network.
+    """
+    road, veh = cfg.road, cfg.vehicles
+    if road.kind != "grid":
+        raise ConfigError(
+            f"vehicles.mobility=sumo without vehicles.sumo_config generates the road network, which is done for "
+            f"road.kind=grid only (got {road.kind!r}); give a scenario in vehicles.sumo_config"
+        )
+    if veh.speed_max_mps <= 0:
+        raise ConfigError("vehicles.mobility=sumo needs vehicles.speed_max_mps > 0 (the network's speed limit)")
+    spacing = road.length_m / road.n_roads_per_axis
+    return [
+        "--grid",
+        f"--grid.x-number={road.n_roads_per_axis}",
+        f"--grid.y-number={road.n_roads_per_axis}",
+        f"--grid.length={spacing!r}",
+        f"--grid.attach-length={spacing / 2!r}",
+        f"--default.lanenumber={road.lanes_per_direction}",
+        f"--default.lanewidth={road.lane_width_m!r}",
+        f"--default.speed={veh.speed_max_mps!r}",
+        "--default-junction-type=priority",
+        "--no-turnarounds.except-deadend=true",
+        "--seed=0",
+    ]
+
+
+def build_network(cfg: ScenarioConfig) -> Path:
+    """The cached ``net.net.xml`` for the ``road`` section (``netgenerate`` runs on a cache miss)."""
+    args = netgenerate_args(cfg)
+    key = {"what": "net", "generator": _GENERATOR_VERSION, "sumo": sumo_version(), "netgenerate": args}
+
+    def build(folder: Path) -> None:
+        run_tool("netgenerate", [*args, f"--output-file={NET_FILE}", "--no-warnings=true"], cwd=folder)
+
+    return cached("net", key, build) / NET_FILE
+
+
+@dataclass(frozen=True)
+class _Net:
+    """The parts of a SUMO network the random walk needs."""
+
+    edges: list[str]
+    length_m: FloatArray
+    speed_mps: FloatArray
+    # per edge: {direction code: [successor edge index]}
+    successors: list[dict[str, list[int]]]
+
+
+def read_net(path: Path) -> _Net:
+    """Edges (not internal), their lengths and their successors by turn direction."""
+    edges: list[str] = []
+    length: list[float] = []
+    speed: list[float] = []
+    conns: list[tuple[str, str, str]] = []
+    try:
+        for _, el in ET.iterparse(path):
+            if el.tag == "edge" and el.get("function") != "internal" and not el.get("id", ":").startswith(":"):
+                lanes = el.findall("lane")
+                edges.append(el.get("id", ""))
+                length.append(float(lanes[0].get("length", "nan")))
+                speed.append(float(lanes[0].get("speed", "nan")))
+            elif el.tag == "connection" and not el.get("from", ":").startswith(":"):
+                conns.append((el.get("from", ""), el.get("to", ""), el.get("dir", "s").lower()))
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (ET.ParseError, OSError) as exc:
+        raise SumoError(f"cannot read the SUMO network {path}: {exc}") from exc
+    index = {e: i for i, e in enumerate(edges)}
+    succ: list[dict[str, list[int]]] = [{} for _ in edges]
+    for a, b, d in conns:
+        if a in index and b in index:
+            lst = succ[index[a]].setdefault(d, [])
+            if index[b] not in lst:
+                lst.append(index[b])
+    return _Net(edges, np.array(length), np.array(speed), succ)
+
+
+def random_walk_routes(
+    net: _Net, cfg: ScenarioConfig, n: int, rng: np.random.Generator
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """``n`` random-walk routes over ``net`` with the paper's turning probabilities.
+
+    All vehicles walk together, one edge per step and one uniform draw per vehicle per step: at the
+    end of an edge a vehicle goes straight / left / right with ``road.p_straight`` / ``p_left`` /
+    ``p_right``, renormalised over the turns that exist there; where none exists (a dead end) it
+    turns back. Every route covers at least ``vehicles.speed_max_mps * ROUTE_HORIZON_S`` metres.
+
+    Returns:
+        (routes [n, edges] as edge indices, desired speeds [n] in m/s, speed factors [n] = desired
+        speed / ``vehicles.speed_max_mps``, the network's speed limit).
+    """
+    road, veh = cfg.road, cfg.vehicles
+    n_edges = len(net.edges)
+    succ = np.zeros((n_edges, 3), dtype=np.int64)
+    cum = np.ones((n_edges, 3))
+    for e, options in enumerate(net.successors):
+        turns: list[tuple[int, float]] = []
+        for d, p in (("s", road.p_straight), ("l", road.p_left), ("r", road.p_right)):
+            if options.get(d) and p > 0:
+                turns.append((options[d][0], p))
+        if not turns:  # a dead end (or only zero-probability turns): turn back
+            back = options.get("t") or [x for lst in options.values() for x in lst]
+            if not back:
+                raise SumoError(f"edge {net.edges[e]} of the generated network has no successor")
+            turns = [(back[0], 1.0)]
+        w = np.array([p for _, p in turns])
+        k = len(turns)
+        succ[e, :k] = [t for t, _ in turns]
+        succ[e, k:] = turns[-1][0]
+        cum[e, :k] = np.cumsum(w / w.sum())
+    first = rng.choice(n_edges, size=n, p=net.length_m / net.length_m.sum())
+    desired = rng.uniform(veh.speed_min_mps, veh.speed_max_mps, size=n)
+    horizon_m = veh.speed_max_mps * ROUTE_HORIZON_S
+    steps = [first]
+    driven = np.zeros(n)  # the first edge is not counted: the vehicle may start at its end
+    while driven.min() < horizon_m:
+        cur = steps[-1]
+        u = rng.random(n)
+        pick = np.minimum((u[:, None] >= cum[cur]).sum(axis=1), 2)
+        nxt = succ[cur, pick]
+        steps.append(nxt)
+        driven += net.length_m[nxt]
+    return np.stack(steps, axis=1), desired, desired / veh.speed_max_mps
+
+
+def routes_xml(net: _Net, routes: IntArray, speed_factor: FloatArray) -> str:
+    """The ``.rou.xml`` text: one vType and a vehicle per route, all departing at t = 0 from a free
+    random position of their first edge (``departPos="random_free"``: SUMO draws it with its seed)."""
+    width = max(3, len(str(len(routes) - 1)))
+    names = np.asarray(net.edges, dtype=object)
+    lines = [
+        "<routes>",
+        '    <vType id="car" vClass="passenger" speedDev="0"/>',
+    ]
+    for k, route in enumerate(routes):
+        edges = " ".join(names[route].tolist())
+        lines.append(
+            f'    <vehicle id="veh{k:0{width}d}" type="car" depart="0" departPos="random_free" '
+            f'departSpeed="max" departLane="best" speedFactor="{speed_factor[k]:.6f}">'
+        )
+        lines.append(f'        <route edges="{edges}"/>')
+        lines.append("    </vehicle>")
+    lines.append("</routes>")
+    return "\n".join(lines) + "\n"
+
+
+def sumocfg_xml(net_file: str, route_file: str, step_s: float, seed: int) -> str:
+    """A ``.sumocfg`` for the generated files (teleports off: a stuck vehicle would vanish)."""
+    return (
+        "<configuration>\n"
+        "    <input>\n"
+        f'        <net-file value="{net_file}"/>\n'
+        f'        <route-files value="{route_file}"/>\n'
+        "    </input>\n"
+        "    <time>\n"
+        '        <begin value="0"/>\n'
+        f'        <step-length value="{step_s!r}"/>\n'
+        "    </time>\n"
+        "    <processing>\n"
+        '        <time-to-teleport value="-1"/>\n'
+        "    </processing>\n"
+        "    <random_number>\n"
+        f'        <seed value="{seed}"/>\n'
+        "    </random_number>\n"
+        "    <report>\n"
+        '        <no-step-log value="true"/>\n'
+        "    </report>\n"
+        "</configuration>\n"
+    )
+
+
+def draw_sumo_seed(rng: np.random.Generator) -> int:
+    """SUMO's ``--seed``: the first draw of the mobility stream."""
+    return int(rng.integers(0, 2**31 - 1))
+
+
+def build_scenario(cfg: ScenarioConfig, rng: np.random.Generator) -> Scenario:
+    """The scenario of ``cfg``: the user's ``vehicles.sumo_config``, or one generated from the road.
+
+    Args:
+        cfg: the scenario configuration (``vehicles.mobility=sumo``).
+        rng: the simulator's ``mobility`` stream (SUMO's seed, then the demand, are drawn from it).
+    """
+    step_s = cfg.traffic.rri_ms / 1000.0
+    seed = draw_sumo_seed(rng)
+    user = cfg.vehicles.sumo_config
+    if user is not None:
+        path = check_sumocfg(user)
+        return Scenario(path, seed, step_s, generated=False)
+    net_path = build_network(cfg)
+    net = read_net(net_path)
+    routes, _, factor = random_walk_routes(net, cfg, cfg.n_vehicles, rng)
+    rou = routes_xml(net, routes, factor)
+    # the network stays in its own cache folder (shared by every seed); export copies it
+    sumocfg = sumocfg_xml(f"../{net_path.parent.name}/{NET_FILE}", ROUTE_FILE, step_s, seed)
+    key = {
+        "what": "scenario",
+        "generator": _GENERATOR_VERSION,
+        "net": net_path.parent.name,
+        "routes": hashlib.sha256(rou.encode()).hexdigest(),
+        "sumocfg": hashlib.sha256(sumocfg.encode()).hexdigest(),
+    }
+
+    def build(folder: Path) -> None:
+        (folder / ROUTE_FILE).write_text(rou)
+        (folder / CFG_FILE).write_text(sumocfg)
+
+    return Scenario(cached("scenario", key, build) / CFG_FILE, seed, step_s, generated=True)
+
+
+def check_sumocfg(path: str | Path) -> Path:
+    """``path`` as an existing, parseable ``.sumocfg`` whose net and route files exist.
+
+    Raises:
+        ConfigError: naming ``vehicles.sumo_config`` and the file.
+    """
+    p = Path(path).expanduser()
+    if not p.is_file():
+        raise ConfigError(f"vehicles.sumo_config: {str(path)!r} does not exist or is not a file")
+    try:
+        root = ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise ConfigError(f"vehicles.sumo_config: {p} is not a valid SUMO configuration (XML: {exc})") from exc
+    if root.tag != "configuration":
+        raise ConfigError(f"vehicles.sumo_config: {p} is not a SUMO configuration (root <{root.tag}>)")
+    for option in ("net-file", "route-files"):
+        el = root.find(f".//{option}")
+        if el is None:
+            if option == "net-file":
+                raise ConfigError(f"vehicles.sumo_config: {p} names no <net-file>")
+            continue
+        for name in (el.get("value") or "").split(","):
+            name = name.strip()
+            if name and not (p.parent / name).is_file():
+                raise ConfigError(f"vehicles.sumo_config: {p}: its {option} {name!r} does not exist")
+    return p.resolve()
+
+
+# ------------------------------------------------------------------------------------------ states
+def tracked_state(pos_m: FloatArray, speed_mps: FloatArray, angle_deg: FloatArray, time_s: float) -> TrackedState:
+    """A :class:`TrackedState` from SUMO's position, speed and angle (degrees clockwise from north)."""
+    a = np.deg2rad(angle_deg)
+    vel = np.stack([speed_mps * np.sin(a), speed_mps * np.cos(a)], axis=1)
+    return TrackedState(np.asarray(pos_m, dtype=np.float64), vel, np.zeros(pos_m.shape[0]), time_s)
+
+
+def _moved(prev: TrackedState, new: TrackedState) -> TrackedState:
+    """``new`` with the odometer of ``prev`` advanced by the straight distance between them.
+
+    Both sources count the odometer this way (it drives the shadowing decorrelation), so a
+    replayed trace gives the same run as live stepping.
+    """
+    step = np.hypot(*(new.pos_m - prev.pos_m).T)
+    return TrackedState(new.pos_m, new.vel_mps, prev.odometer_m + step, new.time_s)
+
+
+def _select(ids_present: Sequence[str], first_seen: dict[str, float], n: int) -> list[str]:
+    """The first ``n`` vehicles present, by (first time seen, ID)."""
+    return sorted(ids_present, key=lambda v: (first_seen[v], v))[:n]
+
+
+# ---------------------------------------------------------------------------------------- lockstep
+_ACTIVE: SumoLockstep | None = None
+
+
+class SumoLockstep:
+    """A SUMO scenario run through libsumo in this process, one step per call to :meth:`advance`.
+
+    libsumo holds one simulation per process: starting a second lockstep closes the first (which
+    then refuses to step). SUMO runs inside this process, so it cannot outlive it.
+
+    Args:
+        scenario: the scenario to run.
+        n: vehicles to track.
+        extra_args: further SUMO options (e.g. ``["--fcd-output", "fcd.xml"]``).
+    """
+
+    def __init__(self, scenario: Scenario, n: int, extra_args: Sequence[str] = ()) -> None:
+        global _ACTIVE
+        self.scenario = scenario
+        self.n = n
+        self.closed = False
+        self._ls = import_libsumo()
+        if _ACTIVE is not None:
+            _ACTIVE.close()
+        args = [
+            "sumo",
+            "-c",
+            str(scenario.sumocfg),
+            "--seed",
+            str(scenario.seed),
+            "--step-length",
+            repr(scenario.step_s),
+            "--no-step-log",
+            "true",
+            "--no-warnings",
+            "true",
+            *extra_args,
+        ]
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                self._ls.start(args)
+        except self._ls.TraCIException as exc:
+            key = "" if scenario.generated else "vehicles.sumo_config: "
+            raise SumoError(
+                f"{key}SUMO cannot load {scenario.sumocfg}: {str(exc).strip()} (SUMO's own messages are on stderr)"
+            ) from exc
+        _ACTIVE = self
+        self.ids = self._fill()
+        for vid in self.ids:
+            self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
+        self.state = self._read()
+        self.t0_s = self.time_s
+
+    @property
+    def time_s(self) -> float:
+        """SUMO time of the state last read (the FCD ``time`` of the same instant)."""
+        return float(self._ls.simulation.getTime()) - self.scenario.step_s
+
+    def _fill(self) -> list[str]:
+        """Step until ``n`` vehicles are in the network; the tracked IDs."""
+        first_seen: dict[str, float] = {}
+        sim = self._ls.simulation
+        while True:
+            self._ls.simulationStep()
+            t = self.time_s
+            for vid in sim.getDepartedIDList():
+                first_seen.setdefault(vid, t)
+            present = self._ls.vehicle.getIDList()
+            if len(present) >= self.n:
+                return _select(present, first_seen, self.n)
+            if sim.getMinExpectedNumber() == 0 or t >= MAX_FILL_S:
+                most = len(present)
+                self.close()
+                raise SumoError(
+                    f"the SUMO scenario {self.scenario.sumocfg} never has {self.n} vehicles in the network at once "
+                    f"(by t = {t:g} s it has {most}); lower vehicles.n_vehicles or add demand to the scenario"
+                )
+
+    def _read(self) -> TrackedState:
+        res = self._ls.vehicle.getAllSubscriptionResults()
+        missing = [v for v in self.ids if v not in res]
+        if missing:
+            t = self.time_s
+            self.close()
+            raise SumoError(
+                f"vehicle {missing[0]!r} of {self.scenario.sumocfg} left the network at t = {t:g} s "
+                f"({len(missing)} of the {self.n} tracked vehicles gone); this version keeps N fixed, so every "
+                "tracked vehicle must stay until the run ends (longer routes, or fewer subframes)"
+            )
+        rows = [res[v] for v in self.ids]
+        pos = np.array([r[_VAR_POSITION] for r in rows], dtype=np.float64)
+        speed = np.array([r[_VAR_SPEED] for r in rows], dtype=np.float64)
+        angle = np.array([r[_VAR_ANGLE] for r in rows], dtype=np.float64)
+        return tracked_state(pos, speed, angle, self.time_s)
+
+    def advance(self) -> TrackedState:
+        """One SUMO step (one reservation period); the new state."""
+        if self.closed:
+            raise RuntimeError(
+                "this SUMO run is closed (libsumo runs one simulation per process: a newer Simulator with "
+                "vehicles.mobility=sumo took it over, or close() was called); reset() the simulator"
+            )
+        self._ls.simulationStep()
+        self.state = _moved(self.state, self._read())
+        return self.state
+
+    def close(self) -> None:
+        """Stop the SUMO simulation (idempotent)."""
+        global _ACTIVE
+        if self.closed:
+            return
+        self.closed = True
+        if _ACTIVE is self:
+            _ACTIVE = None
+            with contextlib.suppress(Exception), contextlib.redirect_stdout(io.StringIO()):
+                self._ls.close()
+
+
+# ------------------------------------------------------------------------------------------- trace
+@dataclass(frozen=True)
+class Trace:
+    """An FCD trace as flat records (one per vehicle and timestep present).
+
+    Attributes:
+        time_s: [T] sorted distinct timesteps.
+        ids: [V] sorted distinct vehicle IDs.
+        ti, vi: [R] timestep index and vehicle index of every record.
+        x_m, y_m, speed_mps, angle_deg: [R] the records' values (angle: degrees clockwise from north).
+    """
+
+    time_s: FloatArray
+    ids: list[str]
+    ti: IntArray
+    vi: IntArray
+    x_m: FloatArray
+    y_m: FloatArray
+    speed_mps: FloatArray
+    angle_deg: FloatArray
+
+    def dense(self, cols: Sequence[int] | IntArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """(x, y, speed, angle) of the vehicles ``cols`` as [T, len(cols)] arrays, NaN where absent."""
+        cols = np.asarray(cols, dtype=np.int64)
+        where = np.full(len(self.ids), -1, dtype=np.int64)
+        where[cols] = np.arange(cols.size)
+        keep = where[self.vi] >= 0
+        out = [np.full((self.time_s.size, cols.size), np.nan) for _ in range(4)]
+        for arr, val in zip(out, (self.x_m, self.y_m, self.speed_mps, self.angle_deg), strict=True):
+            arr[self.ti[keep], where[self.vi[keep]]] = val[keep]
+        return out[0], out[1], out[2], out[3]
+
+
+_COLUMNS = {
+    "time": ("time", "timestep_time"),
+    "id": ("id", "vehicle_id"),
+    "x": ("x", "vehicle_x"),
+    "y": ("y", "vehicle_y"),
+    "angle": ("angle", "vehicle_angle"),
+    "speed": ("speed", "vehicle_speed"),
+}
+
+
+def read_trace(path: str | Path) -> Trace:
+    """Read a SUMO FCD trace: XML (``--fcd-output``, streamed) or parquet (columns ``time, id, x, y,
+    angle, speed``, or SUMO's ``timestep_time, vehicle_id, vehicle_x, ...``).
+
+    Raises:
+        ConfigError: naming ``vehicles.trace_file`` and the file (missing, unreadable, no vehicles).
+    """
+    p = Path(path).expanduser()
+    if not p.is_file():
+        raise ConfigError(f"vehicles.trace_file: {str(path)!r} does not exist or is not a file")
+    if p.suffix.lower() == ".parquet":
+        t, vid, x, y, ang, spd = _read_parquet(p)
+    else:
+        t, vid, x, y, ang, spd = _read_fcd_xml(p)
+    if t.size == 0:
+        raise ConfigError(f"vehicles.trace_file: {p} holds no vehicle positions")
+    times, ti = np.unique(t, return_inverse=True)
+    ids, vi = np.unique(vid, return_inverse=True)
+    return Trace(times, [str(v) for v in ids], ti.astype(np.int64), vi.astype(np.int64), x, y, spd, ang)
+
+
+def _read_fcd_xml(p: Path) -> tuple[FloatArray, NDArray[np.str_], FloatArray, FloatArray, FloatArray, FloatArray]:
+    t: list[float] = []
+    vid: list[str] = []
+    vals: list[tuple[float, float, float, float]] = []
+    now = float("nan")
+    try:
+        for event, el in ET.iterparse(p, events=("start", "end")):
+            if event == "start":
+                if el.tag == "timestep":
+                    now = float(el.get("time", "nan"))
+                continue
+            if el.tag == "vehicle":
+                t.append(now)
+                vid.append(el.get("id", ""))
+                vals.append(
+                    (
+                        float(el.get("x", "nan")),
+                        float(el.get("y", "nan")),
+                        float(el.get("angle", "0")),
+                        float(el.get("speed", "0")),
+                    )
+                )
+            elif el.tag == "timestep":
+                el.clear()
+    except (ET.ParseError, ValueError) as exc:
+        raise ConfigError(f"vehicles.trace_file: {p} is not a readable SUMO FCD XML trace: {exc}") from exc
+    v = np.array(vals, dtype=np.float64).reshape(-1, 4)
+    return np.array(t), np.array(vid, dtype=str), v[:, 0], v[:, 1], v[:, 2], v[:, 3]
+
+
+def _read_parquet(p: Path) -> tuple[FloatArray, NDArray[np.str_], FloatArray, FloatArray, FloatArray, FloatArray]:
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(p)
+    except Exception as exc:
+        raise ConfigError(f"vehicles.trace_file: {p} is not a readable parquet file: {exc}") from exc
+    cols: dict[str, np.ndarray] = {}
+    for name, options in _COLUMNS.items():
+        hit = next((c for c in options if c in table.column_names), None)
+        if hit is None:
+            if name in ("angle", "speed"):
+                cols[name] = np.zeros(table.num_rows)
+                continue
+            have = ", ".join(table.column_names)
+            raise ConfigError(f"vehicles.trace_file: {p} has no column {' or '.join(options)} (columns: {have})")
+        cols[name] = table.column(hit).to_numpy(zero_copy_only=False)
+    return (
+        cols["time"].astype(np.float64),
+        cols["id"].astype(str),
+        cols["x"].astype(np.float64),
+        cols["y"].astype(np.float64),
+        cols["angle"].astype(np.float64),
+        cols["speed"].astype(np.float64),
+    )
+
+
+class TraceReplay:
+    """Replay of an FCD trace, linearly interpolated to a period of ``step_s``.
+
+    The tracked vehicles and time zero follow the rule of the lockstep (module docstring).
+    Positions and velocity vectors are interpolated between the two samples around each time.
+
+    Args:
+        path: the trace file (``vehicles.trace_file``).
+        n: vehicles to track.
+        step_s: the period (``traffic.rri_ms`` in seconds).
+    """
+
+    def __init__(self, path: str | Path, n: int, step_s: float) -> None:
+        self.path = Path(path)
+        self.trace = tr = read_trace(path)
+        self.n = n
+        self.step_s = step_s
+        counts = np.bincount(tr.ti, minlength=tr.time_s.size)
+        full = np.flatnonzero(counts >= n)
+        if full.size == 0:
+            raise ConfigError(
+                f"vehicles.trace_file: {self.path} never has {n} vehicles at once (at most {int(counts.max())}); "
+                "lower vehicles.n_vehicles"
+            )
+        k0 = int(full[0])
+        first = np.full(len(tr.ids), tr.time_s.size, dtype=np.int64)
+        np.minimum.at(first, tr.vi, tr.ti)
+        first_seen = {tr.ids[j]: float(tr.time_s[first[j]]) for j in np.unique(tr.vi[tr.ti == k0])}
+        self.ids = _select(list(first_seen), first_seen, n)
+        col = {v: j for j, v in enumerate(tr.ids)}
+        self._x, self._y, s, ang = tr.dense([col[v] for v in self.ids])  # only the tracked vehicles
+        a = np.deg2rad(ang)
+        self._vx, self._vy = s * np.sin(a), s * np.cos(a)
+        self.t0_s = float(tr.time_s[k0])
+        self.k = 0
+        self.state = self._at(self.t0_s)
+
+    @property
+    def time_s(self) -> float:
+        return self.t0_s + self.k * self.step_s
+
+    def _at(self, t: float) -> TrackedState:
+        times = self.trace.time_s
+        if t > times[-1] + 1e-9:
+            raise SumoError(
+                f"vehicles.trace_file: {self.path} ends at t = {times[-1]:g} s; the run needs t = {t:g} s "
+                f"({t - self.t0_s:g} s from its start at {self.t0_s:g} s); record a longer trace or run fewer subframes"
+            )
+        hi = int(np.searchsorted(times, t - 1e-9))
+        if abs(times[hi] - t) <= 1e-9:
+            lo, w = hi, 0.0
+        else:
+            lo, w = hi - 1, float((t - times[hi - 1]) / (times[hi] - times[hi - 1]))
+        rows = [self._x, self._y, self._vx, self._vy]
+        x, y, vx, vy = (r[lo] if w == 0.0 else (1.0 - w) * r[lo] + w * r[hi] for r in rows)
+        gone = ~np.isfinite(x)
+        if np.any(gone):
+            j = int(np.flatnonzero(gone)[0])
+            raise SumoError(
+                f"vehicles.trace_file: vehicle {self.ids[j]!r} of {self.path} is not in the trace at t = {t:g} s "
+                f"({int(gone.sum())} of the {self.n} tracked vehicles gone); this version keeps N fixed"
+            )
+        return TrackedState(np.stack([x, y], axis=1), np.stack([vx, vy], axis=1), np.zeros(self.n), t)
+
+    def advance(self) -> TrackedState:
+        """The state one period later."""
+        self.k += 1
+        self.state = _moved(self.state, self._at(self.time_s))
+        return self.state
+
+    def close(self) -> None:
+        """Nothing to release (for symmetry with :class:`SumoLockstep`)."""
+
+
+MobilitySource = SumoLockstep | TraceReplay
+
+
+def check_source(cfg: ScenarioConfig) -> None:
+    """Fail early (at simulator construction) on a source that cannot work: SUMO not installed,
+    a missing or broken ``.sumocfg`` or trace file, a road without a generated network."""
+    mob = cfg.vehicles.mobility
+    if mob == "sumo":
+        sumo_home()
+        import_libsumo()
+        if cfg.vehicles.sumo_config is not None:
+            check_sumocfg(cfg.vehicles.sumo_config)
+        else:
+            netgenerate_args(cfg)
+    elif mob == "trace":
+        assert cfg.vehicles.trace_file is not None  # the config checks it
+        p = Path(cfg.vehicles.trace_file).expanduser()
+        if not p.is_file():
+            raise ConfigError(f"vehicles.trace_file: {cfg.vehicles.trace_file!r} does not exist or is not a file")
+
+
+def open_source(cfg: ScenarioConfig, rng: np.random.Generator) -> MobilitySource:
+    """The mobility source of ``cfg`` (``vehicles.mobility`` = ``sumo`` or ``trace``), started.
+
+    Args:
+        cfg: the scenario.
+        rng: the simulator's ``mobility`` stream (SUMO: seed and generated demand).
+    """
+    step_s = cfg.traffic.rri_ms / 1000.0
+    if cfg.vehicles.mobility == "trace":
+        assert cfg.vehicles.trace_file is not None
+        return TraceReplay(cfg.vehicles.trace_file, cfg.n_vehicles, step_s)
+    return SumoLockstep(build_scenario(cfg, rng), cfg.n_vehicles)
+
+
+# ------------------------------------------------------------------------------------------ export
+def trace_table(trace: Trace) -> Any:
+    """The trace as a long Arrow table (``time, id, x, y, angle, speed``; one row per record)."""
+    import pyarrow as pa
+
+    return pa.table(
+        {
+            "time": pa.array(trace.time_s[trace.ti]),
+            "id": pa.array(np.asarray(trace.ids, dtype=object)[trace.vi].tolist(), type=pa.string()),
+            "x": pa.array(trace.x_m),
+            "y": pa.array(trace.y_m),
+            "angle": pa.array(trace.angle_deg),
+            "speed": pa.array(trace.speed_mps),
+        }
+    )
+
+
+def export_scenario(
+    cfg: ScenarioConfig, seed: int, out_dir: Path, seconds: float | None = None, parquet: bool = False
+) -> dict[str, Any]:
+    """Write the generated scenario of ``cfg`` for ``seed`` and SUMO's own FCD trace of it into ``out_dir``.
+
+    The files are those :meth:`cv2x_marl.sim.Simulator.reset` runs for the same configuration and
+    seed: ``net.net.xml``, ``routes.rou.xml``, ``scenario.sumocfg`` (usable as
+    ``vehicles.sumo_config``) and ``fcd.xml`` from ``sumo --fcd-output`` (usable as
+    ``vehicles.trace_file``; 6 decimals), plus ``fcd.parquet`` when ``parquet``.
+
+    Args:
+        cfg: the scenario (``vehicles.sumo_config`` must be null: the scenario is generated).
+        seed: the run seed (as for ``simulate --seed``).
+        out_dir: an existing folder.
+        seconds: SUMO seconds to record; default: the run (``sim.warmup_subframes + sim.n_subframes``)
+            plus 60 s for the vehicles to enter.
+        parquet: also write the trace as parquet.
+
+    Returns:
+        A summary: files, SUMO seed and version, seconds, vehicles and timesteps of the trace.
+    """
+    from cv2x_marl.io import atomic_write
+    from cv2x_marl.rng import RngStreams
+
+    if cfg.vehicles.sumo_config is not None:
+        raise ConfigError(
+            "sumo export generates a scenario from the road section; vehicles.sumo_config is set "
+            f"({cfg.vehicles.sumo_config!r}): run that scenario with SUMO directly"
+        )
+    if seconds is None:
+        seconds = (cfg.sim.warmup_subframes + cfg.sim.n_subframes) / 1000.0 + 60.0
+    scenario = build_scenario(cfg, RngStreams.from_seed(seed).mobility)
+    atomic_write(out_dir / NET_FILE, partial(shutil.copyfile, build_network(cfg)))
+    atomic_write(out_dir / ROUTE_FILE, partial(shutil.copyfile, scenario.sumocfg.parent / ROUTE_FILE))
+    text = sumocfg_xml(NET_FILE, ROUTE_FILE, scenario.step_s, scenario.seed)
+    atomic_write(out_dir / CFG_FILE, lambda p: p.write_text(text))
+    fcd = "fcd.xml"
+    atomic_write(
+        out_dir / fcd,
+        lambda p: run_tool(
+            "sumo",
+            ["-c", CFG_FILE, "--fcd-output", str(p), "--precision", "6", "--end", repr(float(seconds))],
+            cwd=out_dir,
+        ),
+    )
+    trace = read_trace(out_dir / fcd)
+    files = [NET_FILE, ROUTE_FILE, CFG_FILE, fcd]
+    if parquet:
+        import pyarrow.parquet as pq
+
+        table = trace_table(trace)
+        atomic_write(out_dir / "fcd.parquet", lambda p: pq.write_table(table, p))
+        files.append("fcd.parquet")
+    return {
+        "files": files,
+        "seed": seed,
+        "sumo_seed": scenario.seed,
+        "sumo_version": sumo_version(),
+        "step_s": scenario.step_s,
+        "seconds": float(seconds),
+        "n_vehicles": len(trace.ids),
+        "n_timesteps": int(trace.time_s.size),
+    }
