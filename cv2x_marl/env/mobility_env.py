@@ -36,6 +36,8 @@ REWARD_FORMS = ("utility", "improvement")
 #: ``offset``: the action is the step (times ``max_step_m``); ``plan_residual``: the action is added to
 #: the step towards the observed plan (``clip((plan - position) / max_step_m, -1, 1)``) before clipping
 ACTION_MODES = ("offset", "plan_residual")
+#: traffic mode: ``offset`` (radio position off the road position) or ``speed`` (SUMO speed / lane commands)
+TRAFFIC_ACTIONS = ("offset", "speed")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 
@@ -79,6 +81,12 @@ class MobilityEnv(ParallelEnv):
         model: the two-distance model of observation version 1 (``paper-table2`` or a model file).
         replan_every: observation version 2: recompute the sensing plan every ``replan_every`` steps
             from where every vehicle is then (None: once, at reset).
+        traffic_action: traffic mode: ``offset`` (the action moves the vehicle's radio position
+            off its road position, bounded by ``max_drift_m``; the traffic itself does not see it) or
+            ``speed`` (``vehicles.mobility=sumo`` only: a command SUMO honours: ``action[0]`` in
+            [-1, 1] sets the target speed from 0 to ``vehicles.speed_max_mps``, ``action[1]`` > 0.5 /
+            < -0.5 asks for one lane to the left / right; SUMO applies them within its acceleration,
+            deceleration and car-following safety; see ``docs/mobility.md``).
         action_mode: ``offset`` (the action is the step) or ``plan_residual`` (observation >= 1,
             snapshot mode: the action corrects the straight step towards the observed plan, so a zero
             action follows the plan; residual policy learning, Silver et al. 2018).
@@ -118,6 +126,7 @@ class MobilityEnv(ParallelEnv):
         action_mode: str = "offset",
         replan_every: int | None = None,
         reset_cache: int = 0,
+        traffic_action: str = "offset",
     ) -> None:
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
@@ -218,6 +227,14 @@ class MobilityEnv(ParallelEnv):
             replan_every,
         )
         _check("replan_every", replan_every is None or observation >= 2, "null unless observation is 2", replan_every)
+        _check(
+            "traffic_action",
+            traffic_action in TRAFFIC_ACTIONS
+            and (traffic_action == "offset" or (mode == "traffic" and cfg.vehicles.mobility == "sumo")),
+            " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=sumo)",
+            traffic_action,
+        )
+        self.traffic_action = traffic_action
         self.reward_form = reward_form
         self.replan_every = replan_every
         self.action_mode = action_mode
@@ -314,6 +331,12 @@ class MobilityEnv(ParallelEnv):
             new = self._bound(self.positions_m + offsets)
             applied = new - self.positions_m
             self.positions_m = new
+        elif self.traffic_action == "speed":
+            self._command_sumo(act)
+            applied = np.zeros((self.n, 2))
+            self.sim.run(self.sim.rri, record=False)
+            self.resource = self.sim.resource.copy()
+            self.positions_m = self._traffic_positions()
         else:
             total = self.offsets_m + offsets
             if self.max_drift_m is not None:
@@ -414,6 +437,22 @@ class MobilityEnv(ParallelEnv):
             self.agents = []
             self._live = set()
         return obs[0], reward, done, info
+
+    def _command_sumo(self, act: NDArray[np.float64]) -> None:
+        """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands
+        (the settle phase hands the movers back to SUMO's driver)."""
+        from cv2x_marl.sim import sumo
+
+        target = np.full(self.n, np.nan)  # NaN: no command (the vehicles that do not move)
+        lanes = np.zeros(self.n, dtype=np.int64)
+        movers = self.mover_mask
+        if self.t >= self.max_cycles - self.settle_steps:
+            target[movers] = -1.0  # SUMO's own driver again
+        else:
+            a = np.minimum(np.maximum(act, -1.0), 1.0)
+            target[movers] = 0.5 * (a[movers, 0] + 1.0) * self.config.vehicles.speed_max_mps
+            lanes[movers] = np.where(a[movers, 1] > 0.5, 1, np.where(a[movers, 1] < -0.5, -1, 0))
+        sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0)
 
     def _toward_plan(self) -> NDArray[np.float64]:
         """[N, 2] the straight step towards each vehicle's plan as an action (``plan_residual``)."""

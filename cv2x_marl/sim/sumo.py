@@ -580,6 +580,32 @@ class SumoLockstep:
         self.state = _moved(self.state, self._read())
         return self.state
 
+    def command(self, target_speed_mps: FloatArray, lane_change: NDArray[np.int64], duration_s: float) -> None:
+        """Commands for the next step, honoured by SUMO within its own limits (the env's
+        ``traffic_action="speed"``).
+
+        Args:
+            target_speed_mps: [N] speed each tracked vehicle should drive at (``vehicle.setSpeed``:
+                SUMO approaches it within the vehicle type's acceleration and deceleration, and its
+                car-following model still keeps the vehicle safe); a negative value hands the vehicle
+                back to its own driver model; NaN leaves it as it is (no command).
+            lane_change: [N] -1 (one lane to the right), 0 (stay), +1 (one lane to the left)
+                (``vehicle.changeLaneRelative`` for ``duration_s``; ignored where no such lane exists).
+            duration_s: how long a lane-change request holds (s).
+        """
+        if self.closed:
+            raise RuntimeError("this SUMO run is closed; reset() the simulator")
+        target = np.asarray(target_speed_mps, dtype=np.float64)
+        lanes = np.asarray(lane_change, dtype=np.int64)
+        if target.shape != (self.n,) or lanes.shape != (self.n,):
+            raise ValueError(f"target_speed_mps and lane_change must have shape ({self.n},)")
+        veh = self._ls.vehicle
+        for vid, v, dl in zip(self.ids, target.tolist(), lanes.tolist(), strict=True):  # libsumo: per vehicle
+            if v == v:  # not NaN
+                veh.setSpeed(vid, -1.0 if v < 0 else v)  # -1: SUMO's own driver again
+            if dl != 0:
+                veh.changeLaneRelative(vid, int(dl), float(duration_s))
+
     def close(self) -> None:
         """Stop the SUMO simulation (idempotent)."""
         global _ACTIVE
@@ -788,6 +814,14 @@ class TraceReplay:
 
 
 MobilitySource = SumoLockstep | TraceReplay
+
+
+def lockstep_of(simulator: Any) -> SumoLockstep:
+    """The running :class:`SumoLockstep` of a simulator with ``vehicles.mobility=sumo`` (after reset)."""
+    source = getattr(simulator, "_source", None)
+    if not isinstance(source, SumoLockstep):
+        raise ValueError("this simulator does not run SUMO in lockstep (vehicles.mobility must be sumo)")
+    return source
 
 
 def check_source(cfg: ScenarioConfig) -> None:
