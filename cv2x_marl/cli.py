@@ -19,10 +19,8 @@ from cv2x_marl.config import (
     preset,
     to_dict,
 )
-from cv2x_marl.experiments.dataset import DatasetError
 from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.io import dumps_json
-from cv2x_marl.regression import FitError, ModelError
 from cv2x_marl.rl.errors import TrainError
 
 #: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
@@ -597,7 +595,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"cv2x-marl: configuration error: {exc}", file=sys.stderr)
         return 2
-    except (DatasetError, FitError, ModelError, TrainError, ValueError, MissingExtraError) as exc:
+    except (ValueError, MissingExtraError) as exc:  # ConfigError, DatasetError, FitError, ModelError, TrainError, ...
         print(f"cv2x-marl: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # a full disk, a folder that vanished: the run folder was rolled back
