@@ -23,6 +23,8 @@ from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.io import dumps_json
 from cv2x_marl.rl.errors import TrainError
 
+#: dataset readings: ``per-packet`` (the settings as given) or ``paper`` (the paper's Table 3 instances)
+READINGS = ("per-packet", "paper")
 #: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
 EVAL_ENV_IDS = (
     "cv2x/SingleMover-v2",
@@ -129,12 +131,21 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     cfg = _scenario(args)
     if args.subframes is not None:
         cfg = apply_overrides(cfg, [f"sim.n_subframes={args.subframes}"])
+    window_ms = args.aggregate_window_ms
+    if args.reading == "paper":
+        if window_ms:
+            raise ConfigError("--reading paper aggregates over the whole run; drop --aggregate-window-ms")
+        if any(s.split("=", 1)[0].strip() == "metrics.nsv_scope" for s in args.set or []):
+            raise ConfigError("--reading paper sets metrics.nsv_scope=concurrent; drop --set metrics.nsv_scope")
+        cfg = apply_overrides(cfg, ["metrics.nsv_scope=concurrent"])
+        # one subframe per ms; subframes are counted from the start of the warm-up: one window holds the run
+        window_ms = cfg.sim.warmup_subframes + cfg.sim.n_subframes
     manifest = build_dataset(
         cfg,
         args.runs,
         args.seed,
         args.out,
-        args.aggregate_window_ms,
+        window_ms,
         progress=not args.quiet,
         overwrite=args.overwrite,
         ray=args.ray or args.address is not None,
@@ -399,6 +410,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="aggregate per (run, link, window, NSV) into an empirical reception rate (0: per transmission)",
     )
+    p.add_argument(
+        "--reading",
+        choices=list(READINGS),
+        default="per-packet",
+        help="per-packet: one sample per transmission and co-channel NSV (the settings as given); paper: the "
+        "paper's Table 3 reading, NSV over every concurrent transmitter (metrics.nsv_scope=concurrent) and one "
+        "instance per (run, link, NSV) over the whole run (docs/model.md)",
+    )
     p.add_argument("--out", type=Path, required=True, help="dataset folder")
     p.add_argument("--ray", action="store_true", help="run the runs as Ray tasks (a local Ray; the [ray] extra)")
     p.add_argument("--address", help="with --ray: the Ray cluster to use (auto, ray://HOST:10001)")
@@ -412,7 +431,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="fit folder: model.json, table2.md, table3.md, figures")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--model", default="linear", choices=["linear", "logistic"], help="model family")
-    p.add_argument("--target", default="p_success", choices=["p_success", "outcome", "rate"])
+    p.add_argument(
+        "--target",
+        default=None,
+        choices=["p_success", "outcome", "rate"],
+        help="what eq. 15 fits (default: rate for an aggregated dataset, e.g. --reading paper; else p_success)",
+    )
     p.add_argument("--nsv-cap", type=COUNT, default=6, help="NSV values above are pooled into the cap")
     p.add_argument("--test-fraction", type=FRACTION, default=0.2, help="share of runs held out")
     p.add_argument("--min-samples", type=COUNT, default=30, help="below this an NSV borrows a neighbour's fit")

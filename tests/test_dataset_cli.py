@@ -40,6 +40,32 @@ def test_aggregated_dataset(tmp_path: Path) -> None:
     assert max(t["n"]) <= 10  # at most one transmission per 100-ms period in a 1000-ms window
 
 
+def test_paper_reading_is_concurrent_nsv_over_the_whole_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--reading paper`` = the explicit settings ``--set metrics.nsv_scope=concurrent
+    --aggregate-window-ms <warm-up + measured subframes>`` (subframes count from the warm-up's start,
+    so that is one window for the whole run), sample for sample; ``fit`` then defaults to the rate."""
+    _dataset(tmp_path / "paper", extra=("--reading", "paper"))
+    _dataset(
+        tmp_path / "explicit", extra=("--set", "metrics.nsv_scope=concurrent", "--aggregate-window-ms", "1700")
+    )
+    a = pq.read_table(tmp_path / "paper" / "samples.parquet")
+    assert a.equals(pq.read_table(tmp_path / "explicit" / "samples.parquet"))
+    manifest = json.loads((tmp_path / "paper" / "manifest.json").read_text())
+    assert manifest["aggregate_window_ms"] == 1700 and manifest["config"]["metrics"]["nsv_scope"] == "concurrent"
+    assert set(a.column("window").to_pylist()) == {0}  # one window: the whole run
+    capsys.readouterr()
+    assert main(["fit", "--data", str(tmp_path / "paper"), "--out", str(tmp_path / "fit"), "--json"]) == 0
+    capsys.readouterr()
+    run = json.loads((tmp_path / "fit" / "run.json").read_text())
+    assert run["parameters"]["target"] == "rate"
+    with pytest.raises(SystemExit):
+        main(["dataset", "--reading", "mine", "--out", str(tmp_path / "x")])
+    assert main(["dataset", "--reading", "paper", "--aggregate-window-ms", "100", "--out", str(tmp_path / "y")]) == 2
+    assert "drop --aggregate-window-ms" in capsys.readouterr().err
+
+
 def test_fit_writes_model_tables_and_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     data = tmp_path / "ds"
     _dataset(data)

@@ -260,7 +260,7 @@ def run_fit(
     data_dir: Path,
     out_dir: Path,
     kind: str = "linear",
-    target: str = "p_success",
+    target: str | None = None,
     nsv_cap: int = 6,
     test_fraction: float = 0.2,
     seed: int = 0,
@@ -274,6 +274,7 @@ def run_fit(
     ``out_dir`` (a run folder, :class:`cv2x_marl.runs.RunFolder`) receives ``model.json``,
     ``table2.md``, ``table3.md``, with ``compare`` ``model_comparison.{md,json}``, and the
     figures ``fig2_surface.png`` and ``fit_quality.png``; the dataset folder is only read.
+    ``target`` None: ``rate`` for an aggregated dataset (the paper's reading), else ``p_success``.
     """
     out_dir = Path(out_dir)
     if out_dir.suffix == ".json":
@@ -282,6 +283,8 @@ def run_fit(
             f"use e.g. --out {out_dir.with_suffix('')}"
         )
     cols, manifest = load_dataset(data_dir)  # a bad dataset is refused before the folder is touched
+    if target is None:
+        target = "rate" if manifest.get("aggregate_window_ms") else "p_success"
     params = {"data": str(data_dir), "kind": kind, "target": target, "nsv_cap": nsv_cap, "seed": seed}
     with RunFolder(out_dir, "fit", overwrite=overwrite, parameters=params):
         return _fit(
