@@ -286,6 +286,13 @@ class ChannelConfig(Section):
     shadowing_decorrelation_m: float = _key(
         10.0, "Shadowing decorrelation distance (10 urban, 25 highway)", "m", 0.1, 1e4, lo_open=True
     )
+    shadowing_correlation: str = _key(
+        "travelled",
+        "What the shadowing of a pair decorrelates with, rho = exp(-D / shadowing_decorrelation_m): travelled: D "
+        "= the sum of the distances both vehicles travelled (the model so far); pair_distance: D = the change of "
+        "the pair's distance since its last update (TR 36.885 A.1.4; issue 13)",
+        choices=("travelled", "pair_distance"),
+    )
     fading: str = _key(
         "none", "Fast fading per transmission: none or Rayleigh (|h|^2 ~ Exp(1))", choices=("none", "rayleigh")
     )
@@ -376,6 +383,13 @@ class LinkConfig(Section):
         -80.0,
         0.0,
     )
+    per_interpolation: str = _key(
+        "linear",
+        "How per_table interpolates the PER curve between its points: linear: PER linear in SINR (dB) (the model "
+        "so far); log: ln PER linear in SINR (dB), PER geometric between points, which follows the waterfall "
+        "(7 dB on the r0.5 curve: 0.055 linear, 0.042 log; issue 13). Same at the table points",
+        choices=("linear", "log"),
+    )
     max_range_m: float | None = _key(
         None,
         "Interference and link cut-off: pairs farther apart are not computed; null: all pairs",
@@ -413,6 +427,14 @@ class SimConfig(Section):
     n_subframes: int = _key(10240, "Subframes simulated by `simulate` (paper Table 1: 10240)", "subframes", 1, 10**8)
     warmup_subframes: int = _key(
         1000, "Subframes run before measuring (fills the sensing window)", "subframes", 0, 10**7
+    )
+    warmup_mode: str = _key(
+        "fixed",
+        "fixed: warm up for warmup_subframes (the model so far; vehicles whose counter has not expired are "
+        "still on their random initial resource when measuring starts); until_reselected: then go on a period "
+        "at a time until every vehicle has made a sensing-based selection (issue 13). The run summary reports "
+        "the SPS state at the start of the measurement (sps_state_at_start)",
+        choices=("fixed", "until_reselected"),
     )
 
 

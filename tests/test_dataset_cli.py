@@ -40,16 +40,12 @@ def test_aggregated_dataset(tmp_path: Path) -> None:
     assert max(t["n"]) <= 10  # at most one transmission per 100-ms period in a 1000-ms window
 
 
-def test_paper_reading_is_concurrent_nsv_over_the_whole_run(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_paper_reading_is_concurrent_nsv_over_the_whole_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--reading paper`` = the explicit settings ``--set metrics.nsv_scope=concurrent
     --aggregate-window-ms <warm-up + measured subframes>`` (subframes count from the warm-up's start,
     so that is one window for the whole run), sample for sample; ``fit`` then defaults to the rate."""
     _dataset(tmp_path / "paper", extra=("--reading", "paper"))
-    _dataset(
-        tmp_path / "explicit", extra=("--set", "metrics.nsv_scope=concurrent", "--aggregate-window-ms", "1700")
-    )
+    _dataset(tmp_path / "explicit", extra=("--set", "metrics.nsv_scope=concurrent", "--aggregate-window-ms", "1700"))
     a = pq.read_table(tmp_path / "paper" / "samples.parquet")
     assert a.equals(pq.read_table(tmp_path / "explicit" / "samples.parquet"))
     manifest = json.loads((tmp_path / "paper" / "manifest.json").read_text())

@@ -13,7 +13,12 @@
   - floored by free space ``PL_fs = 20 log10 d + 46.4 + 20 log10(fc / 5)``.
 
 * Shadowing (TR 36.885 A.1.4): log-normal, 3 dB LOS / 4 dB NLOS, symmetric per vehicle pair and
-  correlated with distance travelled, ``S' = exp(-D/d_c) S + sqrt(1 - exp(-2D/d_c)) N(0, 1)``.
+  correlated as ``S' = exp(-D/d_c) S + sqrt(1 - exp(-2D/d_c)) N(0, 1)``; ``D``
+  (``channel.shadowing_correlation``): ``travelled``, the sum of the distances both vehicles
+  travelled (the model so far, default); ``pair_distance``, the change of the link's distance
+  since the pair was last read, ``D = |d(t) - d(t')|`` (TR 36.885 A.1.4: D is the change in
+  distance of the link from the previous to the current time instance), so two vehicles driving
+  together keep their shadowing.
 * Fast fading: Rayleigh, an independent ``|h|^2 ~ Exp(1)`` per transmission and link. Packets of a
   link are an RRI (>= 20 ms) apart while the coherence time ``~0.423 / f_D`` is a few ms at
   vehicular Doppler (eq. 4), so independence between transmissions is the right model.
@@ -121,26 +126,59 @@ def path_loss_db(cfg: ChannelConfig, carrier_hz: float, disp_m: FloatArray, los:
 class Shadowing:
     """Symmetric, distance-correlated log-normal shadowing for every vehicle pair.
 
-    A unit-variance Gaussian ``Z[a, b] = Z[b, a]`` per pair evolves as an AR(1) process in the
-    distance ``D`` the pair's two ends travelled since it was last read (``D = odo_a + odo_b -
-    odo_at_last_read``), which makes a lazy update exact: exponential correlation composes.
+    A unit-variance Gaussian ``Z[a, b] = Z[b, a]`` per pair evolves as an AR(1) process in a
+    distance ``D`` since the pair was last read, ``rho = exp(-D / d_c)``:
+
+    * ``correlation="travelled"`` (default): the distance the pair's two ends travelled,
+      ``D = odo_a + odo_b - odo_at_last_read``, which makes a lazy update exact: exponential
+      correlation composes;
+    * ``correlation="pair_distance"``: the change of the pair's distance,
+      ``D = |d_ab - d_ab_at_last_read|`` (TR 36.885 A.1.4); zero at a pair's first read, which keeps
+      the initial draw. The process is stepped at the reads (every period the pair is within
+      ``link.max_range_m``), as the standard's per-time-instance update.
+
     The dB value is ``sigma(LOS/NLOS) * Z``, so a LOS change rescales it without a jump in Z.
     """
 
-    def __init__(self, n: int, decorrelation_m: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self, n: int, decorrelation_m: float, rng: np.random.Generator, correlation: str = "travelled"
+    ) -> None:
+        if correlation not in ("travelled", "pair_distance"):
+            raise ValueError(f"unknown shadowing correlation {correlation!r}; available: travelled, pair_distance")
         w = rng.standard_normal((n, n))
         self._z = np.triu(w, 1) + np.triu(w, 1).T  # symmetric, unit variance off the diagonal
-        self._last_odo = np.zeros((n, n))
+        # travelled: odometer sum at the last read; pair_distance: the pair's distance then (NaN: never read)
+        self._last_odo = np.zeros((n, n)) if correlation == "travelled" else np.full((n, n), np.nan)
         self._dc = decorrelation_m
         self._rng = rng
+        self.correlation = correlation
 
-    def sample(self, a: NDArray[np.int64], b: NDArray[np.int64], odometer_m: FloatArray) -> FloatArray:
-        """Unit-variance shadowing of unordered pairs ``(a, b)``, updated to the current odometers."""
+    def sample(
+        self,
+        a: NDArray[np.int64],
+        b: NDArray[np.int64],
+        odometer_m: FloatArray,
+        distance_m: FloatArray | None = None,
+    ) -> FloatArray:
+        """Unit-variance shadowing of unordered pairs ``(a, b)``, updated to now.
+
+        Args:
+            a, b: [P] the pairs' vehicles.
+            odometer_m: [N] distance each vehicle travelled since reset (``travelled``).
+            distance_m: [P] the pairs' current distances (needed by ``pair_distance``).
+        """
         n = self._z.shape[0]
         ab, ba = a * n + b, b * n + a  # flat indices of (a, b) and (b, a)
         z_flat, odo_flat = self._z.reshape(-1), self._last_odo.reshape(-1)
-        odo = odometer_m[a] + odometer_m[b]
-        rho = np.exp(-(odo - odo_flat[ab]) / self._dc)
+        if self.correlation == "travelled":
+            odo = odometer_m[a] + odometer_m[b]
+            rho = np.exp(-(odo - odo_flat[ab]) / self._dc)
+        else:
+            if distance_m is None:
+                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
+            odo = np.asarray(distance_m, dtype=np.float64)
+            change_m = np.abs(odo - odo_flat[ab])
+            rho = np.exp(-np.where(np.isnan(change_m), 0.0, change_m) / self._dc)
         z = rho * z_flat[ab] + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(a.shape[0])
         z_flat[ab] = z
         z_flat[ba] = z

@@ -193,7 +193,7 @@ class MoverLinks:
         else:
             sinr_db = 10.0 * np.log10(s_mw / (self.interference_mw + noise_mw))
             if cfg.link.model == "per_table":
-                p = link.load_per_curve(cfg.link.per_curve).success(sinr_db)
+                p = link.load_per_curve(cfg.link.per_curve, cfg.link.per_interpolation).success(sinr_db)
             else:
                 p = link.threshold_success(sinr_db, cfg.link.sinr_threshold_db)
         if cfg.radio.sensitivity_dbm is not None:
@@ -281,7 +281,7 @@ class SnapshotLinks:
         radio = config.radio
         self.eirp_dbm = radio.tx_power_dbm + radio.tx_antenna_gain_dbi + radio.rx_antenna_gain_dbi
         self.noise_mw = float(db_to_linear(noise_power_dbm(radio.noise_dbm, radio.noise_figure_db)))
-        self.curve = link.load_per_curve(config.link.per_curve)
+        self.curve = link.load_per_curve(config.link.per_curve, config.link.per_interpolation)
         rng = config.link.max_range_m
         self._range2 = None if rng is None else rng * rng
         self._wrap_road = self.road if config.road.wrap_distances else None
@@ -307,7 +307,7 @@ class SnapshotLinks:
             idx,
             val,
             self.noise_mw,
-            kernels.MODEL_PER_TABLE if cfg.link.model == "per_table" else kernels.MODEL_THRESHOLD,
+            self.curve.kernel_model if cfg.link.model == "per_table" else kernels.MODEL_THRESHOLD,
             np.ascontiguousarray(self.curve.sinr_db, dtype=np.float64),
             np.ascontiguousarray(self.curve.per, dtype=np.float64),
             float(cfg.link.sinr_threshold_db),

@@ -30,6 +30,8 @@ FloatArray = NDArray[np.float64]
 WB1_CONSTANTS = ("breakpoint_m", "c_near_db", "c_far_db", "c_nlos_db", "c_free_db", "min_distance_m")
 MODEL_PER_TABLE = 0
 MODEL_THRESHOLD = 1
+#: ``per_table`` with ``link.per_interpolation=log``: ``ln PER`` interpolated linearly in SINR (dB)
+MODEL_PER_TABLE_LOG = 2
 _DB_TO_NEPER = math.log(10.0) / 10.0
 
 
@@ -102,14 +104,19 @@ def winner_b1_array_db(dx_m: FloatArray, dy_m: FloatArray, los: NDArray[np.bool_
 
 
 @njit(cache=True)
-def _per_success(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray) -> float:
-    """``1 - PER`` linearly interpolated (PER 1 below the table, the last PER above): np.interp's formula."""
+def _per_success(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool = False) -> float:
+    """``1 - PER`` interpolated (PER 1 below the table, the last PER above): np.interp's formula,
+    on PER (``log_domain`` False) or on ``ln PER`` (True; :meth:`cv2x_marl.sim.link.PerCurve.success`)."""
     k = per_sinr_db.shape[0]
     if not sinr_db >= per_sinr_db[0]:  # also -inf and NaN
         return 0.0
     if sinr_db >= per_sinr_db[k - 1]:
         return 1.0 - per[k - 1]
     j = np.searchsorted(per_sinr_db, sinr_db, side="right") - 1
+    if log_domain:
+        lo, hi = math.log(per[j]), math.log(per[j + 1])
+        slope = (hi - lo) / (per_sinr_db[j + 1] - per_sinr_db[j])
+        return 1.0 - math.exp(slope * (sinr_db - per_sinr_db[j]) + lo)
     slope = (per[j + 1] - per[j]) / (per_sinr_db[j + 1] - per_sinr_db[j])
     return 1.0 - (slope * (sinr_db - per_sinr_db[j]) + per[j])
 
@@ -193,6 +200,8 @@ def _success_at_level(
     sinr_db = s_dbm - level_db
     if model == MODEL_PER_TABLE:
         return _per_success(sinr_db, per_sinr_db, per)
+    if model == MODEL_PER_TABLE_LOG:
+        return _per_success(sinr_db, per_sinr_db, per, True)
     return 1.0 if sinr_db >= threshold_db else 0.0
 
 
@@ -243,7 +252,8 @@ def snapshot_links(
             (its co-channel users, and with in-band emission the rest of its subframe), -1 padded.
         interferer_weight: [N, G] their weights (1 co-channel, the emission factor otherwise).
         noise_mw: thermal noise plus noise figure (mW).
-        model: :data:`MODEL_PER_TABLE` (``1 - PER(SINR)``) or :data:`MODEL_THRESHOLD`.
+        model: :data:`MODEL_PER_TABLE` (``1 - PER(SINR)``), :data:`MODEL_PER_TABLE_LOG` (the same,
+            interpolated in ``ln PER``) or :data:`MODEL_THRESHOLD`.
         per_sinr_db, per: [K] the PER table (ascending SINR).
         threshold_db: SINR threshold of the threshold model.
         sensitivity_dbm: receivers below it decode nothing (-inf: no sensitivity).

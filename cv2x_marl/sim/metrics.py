@@ -36,6 +36,8 @@ class PrrAccumulator:
         self.node_decoded = np.zeros(n_vehicles, dtype=np.int64)
         self.node_expected = np.zeros(n_vehicles)
         self.n_transmissions = 0
+        #: the simulator's SPS state when the measurement started (:meth:`Simulator.sps_state`), or None
+        self.sps_state_at_start: dict[str, Any] | None = None
 
     def add(
         self,
@@ -98,7 +100,7 @@ class PrrAccumulator:
             "loss_cause_shares": {name: float(total[c] / lost) for c, name in enumerate(CAUSES) if c > 0},
             "n_transmissions": int(self.n_transmissions),
             "n_link_samples": int(self.bin_n.sum()),
-        }
+        } | ({} if self.sps_state_at_start is None else {"sps_state_at_start": self.sps_state_at_start})
 
     def prr_at(self, distance_m: float) -> float:
         """PRR of the bin containing ``distance_m`` (NaN when the bin is empty or out of range)."""

@@ -152,7 +152,7 @@ class Simulator:
         self.n_sub = config.sps.n_subchannels
         self.n_res = self.rri * self.n_sub
         self.noise_mw = float(db_to_linear(noise_power_dbm(config.radio.noise_dbm, config.radio.noise_figure_db)))
-        self.curve = link.load_per_curve(config.link.per_curve)
+        self.curve = link.load_per_curve(config.link.per_curve, config.link.per_interpolation)
         self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
@@ -180,7 +180,9 @@ class Simulator:
 
             self._source = sumo.open_source(cfg, self.rng.mobility)
             self.state = self._source.state
-        self.shadowing = channel.Shadowing(self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing)
+        self.shadowing = channel.Shadowing(
+            self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing, cfg.channel.shadowing_correlation
+        )
         if cfg.traffic.synchronous:
             self.generation_slot = np.zeros(self.n, dtype=np.int64)
         else:
@@ -189,6 +191,8 @@ class Simulator:
         pick = self.rng.sps.integers(0, cand.shape[1], size=self.n)
         self.resource = cand[np.arange(self.n), pick]
         self.counter = sps.draw_counters(cfg.sps, self.rri, self.n, self.rng.sps)
+        self.initial_resource = np.ones(self.n, dtype=bool)  # still on the random resource of reset
+        self.n_expiries_per_vehicle = np.zeros(self.n, dtype=np.int64)
         self._releasing = np.zeros(self.n, dtype=bool)
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
@@ -205,7 +209,40 @@ class Simulator:
         warm = cfg.sim.warmup_subframes if warmup_subframes is None else warmup_subframes
         if warm:
             self.run(warm, record=False)
+        if cfg.sim.warmup_mode == "until_reselected":
+            self._warm_until_reselected()
         return self.snapshot()
+
+    def _warm_until_reselected(self) -> None:
+        """``sim.warmup_mode=until_reselected``: go on, a period at a time, until every vehicle has left
+        the random resource of :meth:`reset` by a sensing-based selection (TS 36.213 14.1.1.6), so
+        that no random initial allocation survives into the measurement (issue 13, defect 2).
+
+        Each vehicle reselects after a counter of at most ``counter_max`` periods with probability
+        ``1 - keep_probability`` at each expiry, so this ends (after about ``counter_max / (1 - p)``
+        periods times a log of N); ``sim.warmup_subframes`` caps the total at 10^7 subframes.
+        """
+        cap = 10**7
+        while np.any(self.initial_resource) and self.subframe < cap:
+            self.run(self.rri - self.subframe % self.rri, record=False)
+
+    def sps_state(self) -> dict[str, object]:
+        """The SPS state now, JSON-ready (the run summary reports it at the start of the measurement).
+
+        Returns:
+            ``subframe``; ``share_initial_resource``: vehicles still on the random resource drawn at
+            :meth:`reset` (no sensing-based selection yet); ``share_never_expired``: vehicles whose
+            reselection counter has not expired yet; ``counter_mean`` and ``counter_histogram``
+            (reselection counter value -> number of vehicles; TS 36.321 5.14.1.1).
+        """
+        values, counts = np.unique(self.counter, return_counts=True)
+        return {
+            "subframe": int(self.subframe),
+            "share_initial_resource": float(np.mean(self.initial_resource)),
+            "share_never_expired": float(np.mean(self.n_expiries_per_vehicle == 0)),
+            "counter_mean": float(np.mean(self.counter)),
+            "counter_histogram": {str(int(v)): int(c) for v, c in zip(values, counts, strict=True)},
+        }
 
     def _new_period_buffers(self) -> None:
         self._period_rssi = np.zeros(self.n * self.n_res)
@@ -329,7 +366,7 @@ class Simulator:
         pl = channel.path_loss_db(cfg.channel, cfg.radio.carrier_hz, disp, los)
         ch = cfg.channel
         if ch.shadowing_std_db > 0 or ch.shadowing_nlos_std_db > 0:
-            z = self.shadowing.sample(i, j, self.state.odometer_m)
+            z = self.shadowing.sample(i, j, self.state.odometer_m, dist)
             pl = pl + np.where(los, ch.shadowing_std_db, ch.shadowing_nlos_std_db) * z
         mean_dbm = self._tx_eirp_dbm() - pl
         geo.rx = np.concatenate([i, j])
@@ -367,6 +404,8 @@ class Simulator:
             raise ValueError(f"n_subframes must be >= 0, got {n_subframes}")
         cfg = self.config
         acc = PrrAccumulator(self.n, cfg.metrics.prr_bin_m, cfg.metrics.max_distance_m)
+        if record:
+            acc.sps_state_at_start = self.sps_state()
         keep_links = record and cfg.metrics.record_links
         cols: dict[str, list[np.ndarray]] = {c: [] for c in LINK_COLUMNS}
         t0 = time.perf_counter()
@@ -563,6 +602,7 @@ class Simulator:
             keep = self.rng.sps.random(self.n) < cfg.sps.keep_probability
         reselect = np.flatnonzero(expired & ~keep)
         self.n_expiries += int(expired.sum())
+        self.n_expiries_per_vehicle += expired
         self.n_keeps += int((expired & keep).sum())
         if np.any(expired):
             self.counter[expired] = sps.draw_counters(cfg.sps, self.rri, int(expired.sum()), self.rng.sps)
@@ -575,6 +615,7 @@ class Simulator:
             rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
             choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
             self.resource[reselect] = cand[np.arange(reselect.size), choice]
+            self.initial_resource[reselect] = False
             self.n_reselections += int(reselect.size)
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
