@@ -29,7 +29,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.rng import RngStreams
@@ -326,6 +325,8 @@ class Simulator:
         rng_m = self.config.link.max_range_m
         if rng_m is None:
             return self._all_pairs
+        from scipy.spatial import cKDTree  # only with a link cut-off: importing scipy.spatial costs ~0.8 s
+
         if self.config.road.wrap_distances:
             box = np.where(np.isfinite(self.road.periodic_box_m), self.road.periodic_box_m, 1e12)
             tree = cKDTree(np.mod(pos, box), boxsize=box)
