@@ -193,11 +193,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _cmd_gbmu(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.baselines import resolve_model
     from cv2x_marl.experiments.dataset import load_model
     from cv2x_marl.experiments.gbmu_study import run_study
 
     cfg = _scenario(args)
-    model = load_model(args.model)
+    model = load_model(resolve_model(str(args.model)))
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     summary = run_study(
         args.case,
@@ -233,6 +234,7 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments.baselines import resolve_model
     from cv2x_marl.experiments.evaluate import evaluate
 
     env_kwargs = {
@@ -250,7 +252,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         args.seed,
         args.out,
         env_kwargs,
-        model_path=str(args.model),
+        model_path=resolve_model(str(args.model)),
         delta=args.delta,
         progress=not args.quiet,
         vs_optimum=args.vs_optimum,
@@ -458,13 +460,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         type=Path,
         default=Path("paper-table2"),
-        help="fit folder or model.json (from `cv2x-marl fit`), or paper-table2 (default)",
+        help="fit folder or model.json (from `cv2x-marl fit`), paper-table2 (default), or a shipped model: "
+        "linear-fit, logistic-fit",
     )
     p.add_argument(
         "--methods",
         default="gbmu,greedy,oracle,planner,optimum",
         help="comma-separated: gbmu, greedy, oracle, planner (the steering model's best reachable position), "
-        "optimum (the best reachable position under the judge)",
+        "optimum (the best reachable position under the judge); variants beyond the paper: gbmu-logistic, "
+        "planner-logistic (the shipped logistic-fit model), gbmu-schedule (Armijo backtracking step), "
+        "gbmu-logistic-schedule",
     )
     p.add_argument(
         "--truth-los",
@@ -515,7 +520,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         type=Path,
         default=Path("paper-table2"),
-        help="two-distance model for gbmu/greedy/planner: a fit folder, a model.json or paper-table2",
+        help="two-distance model for gbmu/greedy/planner: a fit folder, a model.json, paper-table2 or a shipped "
+        "model (linear-fit, logistic-fit)",
     )
     p.add_argument("--delta", type=POSITIVE_FLOAT, default=100.0, help="GBMU/greedy/oracle step size per env step")
     p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")

@@ -115,6 +115,10 @@ METHOD_STYLE = {
     "oracle": ("#59a14f", "oracle"),
     "planner": ("#b07aa1", "planner (model's best reachable)"),
     "optimum": ("#7f7f7f", "optimum (best reachable)"),
+    "gbmu-logistic": ("#f28e2b", "GBMU, logistic model"),
+    "gbmu-schedule": ("#ff9da7", "GBMU, backtracking step"),
+    "gbmu-logistic-schedule": ("#9c755f", "GBMU, logistic + backtracking"),
+    "planner-logistic": ("#76b7b2", "planner, logistic model"),
 }
 
 

@@ -8,8 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from cv2x_marl.experiments.baselines import baseline_files, load_baseline, render_table, run_baselines
-from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.experiments.baselines import (
+    baseline_files,
+    load_baseline,
+    make_baseline_policy,
+    render_table,
+    run_baselines,
+)
+from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
 
 ROOT = Path(__file__).resolve().parent.parent
 FAST = {"max_cycles": 4, "overrides": ["sim.warmup_subframes=200"]}
@@ -40,6 +46,11 @@ def test_the_results_table_is_current() -> None:
         ("policy: gbmu\nenv_id: cv2x/Other-v0\n", "env_id"),
         ("policy: gbmu\nenv: [1]\n", "env must be a mapping"),
         ("- gbmu\n", "must be a mapping"),
+        ("policy: gbmu\nstep_schedule: adam\n", "step_schedule must be one of constant, decay, backtracking"),
+        ("policy: optimum\nstep_schedule: decay\n", "step_schedule applies to policies gbmu, greedy only"),
+        ("policy: gbmu\nstep_schedule: decay\ndecay_k0: 0\n", "decay_k0 must be a finite number > 0"),
+        ("policy: gbmu\ndecay_k0: .inf\n", "decay_k0"),
+        ("policy: gbmu\nmodel: 3\n", "model must be paper-table2, linear-fit, logistic-fit or a model file"),
     ],
 )
 def test_bad_baseline_files_are_refused_by_name(tmp_path: Path, text: str, culprit: str) -> None:
@@ -59,3 +70,24 @@ def test_run_baselines_writes_the_table_and_shares(tmp_path: Path) -> None:
     shares = {r["baseline"]: r["share_of_optimum"] for r in result["rows"]}
     assert shares["optimum"] == 1.0 and shares["static"] == 0.0
     assert (tmp_path / "results.md").read_text() == render_table(json.loads((tmp_path / "results.json").read_text()))
+
+
+@pytest.mark.parametrize(
+    ("name", "kind", "schedule"),
+    [
+        ("gbmu", "linear", None),
+        ("gbmu-logistic", "logistic", None),
+        ("gbmu-linear-fit", "linear", None),
+        ("gbmu-schedule", "linear", "backtracking"),
+        ("gbmu-decay", "linear", "decay"),
+        ("gbmu-logistic-schedule", "logistic", "backtracking"),
+    ],
+)
+def test_gbmu_variant_files_carry_their_model_and_schedule(name: str, kind: str, schedule: str | None) -> None:
+    env = make_eval_env("cv2x/SingleMover-v2", **FAST)
+    policy = make_baseline_policy(load_baseline(ROOT / "baselines" / f"{name}.yaml"), env)
+    assert policy.name == "gbmu" and policy.model.kind == kind  # type: ignore[attr-defined]
+    got = policy.schedule  # type: ignore[attr-defined]
+    assert (got and got.kind) == schedule
+    if name.startswith("gbmu-logistic"):
+        assert policy.model.provenance["shipped_as"] == "cv2x_marl/regression/data/logistic-fit.json"  # type: ignore[attr-defined]

@@ -4,10 +4,18 @@ A baseline file names a scripted policy and its settings::
 
     # GBMU, the paper's algorithm (steps 1-5), steered by the paper's Table 2 model
     policy: gbmu            # static | random | greedy | gbmu | oracle | planner | sensing | optimum
-    model: paper-table2     # two-distance model (gbmu, greedy, planner)
+    model: paper-table2     # two-distance model (gbmu, greedy, planner): paper-table2, a shipped
+                            # model (linear-fit, logistic-fit) or a model file / fit folder
     delta: 100.0            # step size per env step (gbmu, greedy, oracle)
+    step_schedule: constant # gbmu, greedy: constant (the paper) | decay | backtracking
+    decay_k0: 100.0         # step_schedule decay: delta_k = delta / (1 + k / decay_k0), k = env step
     env_id: cv2x/SingleMover-v2   # the env it runs on when --env is not given
     env: {}                 # env arguments (e.g. replan_every for sensing on Mobility-v2)
+
+The shipped models (:data:`SHIPPED_MODELS`, package data ``cv2x_marl/regression/data/NAME.json``)
+were fitted on the same stage-1 data, the paper preset's ``cv2x-marl dataset --runs 10 --seed 0``,
+by ``cv2x-marl fit --model linear`` and ``--model logistic`` (the command is in each file's
+provenance). The step schedules are :class:`~cv2x_marl.policies.gbmu.StepSchedule`'s.
 
 ``cv2x-marl evaluate --policy baselines/gbmu.yaml`` runs one; ``cv2x-marl baselines`` runs all of a
 folder on the same held-out episodes and writes ``results.json`` and ``results.md`` there (the
@@ -16,16 +24,43 @@ table is rendered from the JSON by :func:`render_table`, so a test can check it 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cv2x_marl.checks import is_real
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.policies.gbmu import SCHEDULES, StepSchedule
 from cv2x_marl.runs import locked
 
 SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
-KEYS = ("policy", "model", "delta", "env_id", "env", "description")
+KEYS = ("policy", "model", "delta", "step_schedule", "decay_k0", "env_id", "env", "description")
+#: two-distance models shipped as package data (``cv2x_marl/regression/data/NAME.json``)
+SHIPPED_MODELS = ("linear-fit", "logistic-fit")
+#: the policies that take a step schedule
+SCHEDULED = ("gbmu", "greedy")
+
+
+def resolve_model(model: str) -> str:
+    """A model name as :func:`~cv2x_marl.experiments.dataset.load_model` reads it: a shipped model's
+    name (:data:`SHIPPED_MODELS`) becomes its package-data path; anything else is returned as is."""
+    if model not in SHIPPED_MODELS:
+        return model
+    from importlib.resources import files
+
+    return str(files("cv2x_marl.regression") / "data" / f"{model}.json")
+
+
+def load_shipped_model(name: str) -> Any:
+    """The shipped :class:`~cv2x_marl.regression.model.TwoDistanceModel` ``name`` (:data:`SHIPPED_MODELS`)."""
+    from cv2x_marl.regression.model import TwoDistanceModel
+
+    if name not in SHIPPED_MODELS:
+        raise ValueError(f"unknown shipped model {name!r}; shipped models: {', '.join(SHIPPED_MODELS)}")
+    return TwoDistanceModel.load(resolve_model(name))
+
+
 #: the columns of the results table, in order
 COLUMNS = (
     "mean_utility_gain",
@@ -48,6 +83,14 @@ class Baseline:
     env_id: str = "cv2x/SingleMover-v2"
     env: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    step_schedule: str = "constant"
+    decay_k0: float = 100.0
+
+    def schedule(self) -> StepSchedule | None:
+        """The GBMU step schedule (None: the paper's constant step)."""
+        if self.step_schedule == "constant":
+            return None
+        return StepSchedule(self.step_schedule, decay_k0=self.decay_k0)
 
 
 def is_baseline_file(spec: str) -> bool:
@@ -79,8 +122,46 @@ def load_baseline(path: str | Path) -> Baseline:
         raise ValueError(f"baseline file {path}: env must be a mapping of env arguments, got {env!r}")
     model = data.get("model", "paper-table2")
     if not isinstance(model, str):
-        raise ValueError(f"baseline file {path}: model must be a model file or paper-table2, got {model!r}")
-    return Baseline(path.stem, policy, model, float(delta), env_id, dict(env), str(data.get("description", "")))
+        raise ValueError(
+            f"baseline file {path}: model must be paper-table2, {', '.join(SHIPPED_MODELS)} or a model file, "
+            f"got {model!r}"
+        )
+    schedule = data.get("step_schedule", "constant")
+    if schedule not in SCHEDULES:
+        raise ValueError(f"baseline file {path}: step_schedule must be one of {', '.join(SCHEDULES)}, got {schedule!r}")
+    if schedule != "constant" and policy not in SCHEDULED:
+        raise ValueError(
+            f"baseline file {path}: step_schedule applies to policies {', '.join(SCHEDULED)} only, not {policy!r}"
+        )
+    k0 = data.get("decay_k0", 100.0)
+    if not is_real(k0) or not math.isfinite(k0) or k0 <= 0:
+        raise ValueError(f"baseline file {path}: decay_k0 must be a finite number > 0 (env steps), got {k0!r}")
+    return Baseline(
+        path.stem,
+        policy,
+        model,
+        float(delta),
+        env_id,
+        dict(env),
+        str(data.get("description", "")),
+        str(schedule),
+        float(k0),
+    )
+
+
+def make_baseline_policy(spec: Baseline, env: Any) -> Any:
+    """The policy a baseline file describes, for ``env`` (its model resolved, its step schedule set)."""
+    from cv2x_marl.experiments.evaluate import make_policy
+
+    model = resolve_model(spec.model)
+    if spec.policy in SCHEDULED:
+        from cv2x_marl.experiments.dataset import load_model
+        from cv2x_marl.policies.scripted import GbmuPolicy
+
+        return GbmuPolicy(
+            load_model(model), env.layout, env.max_step_m, spec.delta, spec.policy == "gbmu", spec.schedule()
+        )
+    return make_policy(spec.policy, env, model, spec.delta)
 
 
 def baseline_files(folder: str | Path) -> list[Path]:
@@ -99,7 +180,7 @@ def run_baselines(
 ) -> dict[str, Any]:
     """Evaluate every baseline of ``folder`` on the same episodes; write ``results.json`` and
     ``results.md`` there; return the results. ``env_id`` overrides the files' own env ids."""
-    specs = [load_baseline(p) for p in baseline_files(folder)]
+    specs = [(p, load_baseline(p)) for p in baseline_files(folder)]
     with locked(folder, "baselines"):  # one run at a time writes the folder's results
         result = _run(specs, folder, episodes, seed, env_id, progress)
         write_json(Path(folder) / "results.json", result)
@@ -108,23 +189,18 @@ def run_baselines(
 
 
 def _run(
-    specs: list[Baseline], folder: str | Path, episodes: int, seed: int, env_id: str | None, progress: bool
+    specs: list[tuple[Path, Baseline]],
+    folder: str | Path,
+    episodes: int,
+    seed: int,
+    env_id: str | None,
+    progress: bool,
 ) -> dict[str, Any]:
     from cv2x_marl.experiments.evaluate import evaluate
 
     rows = []
-    for spec in specs:
-        res = evaluate(
-            env_id or spec.env_id,
-            spec.policy,
-            episodes,
-            seed,
-            None,
-            spec.env,
-            model_path=spec.model,
-            delta=spec.delta,
-            progress=progress,
-        )
+    for path, spec in specs:  # the file itself: evaluate reads its policy, model, schedule and env
+        res = evaluate(env_id or spec.env_id, str(path), episodes, seed, None, progress=progress)
         metrics = {k: res[k] for k in COLUMNS if k != "share_of_optimum"}
         rows.append({"baseline": spec.name, "policy": spec.policy, "env": res["env"], **metrics})
     optimum = {r["env"]: r["mean_utility_gain"] for r in rows if r["policy"] == "optimum"}

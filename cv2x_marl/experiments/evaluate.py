@@ -183,11 +183,12 @@ def evaluate(
     """
     from tqdm import tqdm
 
-    from cv2x_marl.experiments.baselines import is_baseline_file, load_baseline
+    from cv2x_marl.experiments.baselines import is_baseline_file, load_baseline, make_baseline_policy
 
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
     env_kwargs = dict(env_kwargs or {})
+    spec = None
     if isinstance(policy_spec, str) and is_baseline_file(policy_spec):  # baselines/NAME.yaml
         spec = load_baseline(policy_spec)
         env_id = env_id or spec.env_id
@@ -199,7 +200,9 @@ def evaluate(
         env_kwargs = {**trained_env, **env_kwargs}
     env_id = env_id or "cv2x/SingleMover-v2"
     env = make_eval_env(env_id, **env_kwargs)
-    if isinstance(policy_spec, str):
+    if spec is not None:  # its model (a shipped name or a file) and its step schedule
+        policy = make_baseline_policy(spec, env)
+    elif isinstance(policy_spec, str):
         policy = make_policy(policy_spec, env, model_path, delta)
     else:
         policy = policy_spec

@@ -3,6 +3,15 @@
 Every method starts from the same snapshot positions; the true utility and PRR after each move
 come from the simulator's link model (:class:`cv2x_marl.sim.evaluate.MoverLinks`), never from the
 regression model that steers GBMU.
+
+Beyond the paper (issue 15), named variants split GBMU's gap to the optimum into the model and the
+algorithm (:data:`VARIANTS`, selected with ``--methods``):
+
+* ``gbmu-logistic``: GBMU steered by the shipped logistic two-distance model (``logistic-fit``)
+  instead of the ``--model`` one; ``planner-logistic``: the global search over that model;
+* ``gbmu-schedule``: GBMU with the step-size schedule :data:`VARIANT_SCHEDULE` (Armijo
+  backtracking on the steering model's predicted utility) instead of the constant step;
+* ``gbmu-logistic-schedule``: both.
 """
 
 from __future__ import annotations
@@ -20,7 +29,15 @@ from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig, apply_overrides, to_dict
 from cv2x_marl.io import atomic_write, write_json
-from cv2x_marl.policies.gbmu import ClimbResult, GbmuInputs, climb, gbmu_direction, oracle_direction
+from cv2x_marl.policies.gbmu import (
+    ClimbResult,
+    GbmuInputs,
+    SteeringUtility,
+    StepSchedule,
+    climb,
+    gbmu_direction,
+    oracle_direction,
+)
 from cv2x_marl.regression.model import TwoDistanceModel
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import run_folder
@@ -30,6 +47,14 @@ from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, util
 
 CASES = ("seven-node", "snapshot", "realizations")
 METHODS = ("gbmu", "greedy", "oracle", "planner", "optimum")
+#: named variants beyond the paper (module docstring); not run unless asked for
+VARIANTS = ("gbmu-logistic", "gbmu-schedule", "gbmu-logistic-schedule", "planner-logistic")
+#: every method ``--methods`` accepts
+ALL_METHODS = METHODS + VARIANTS
+#: the shipped model that steers the ``-logistic`` variants
+VARIANT_MODEL = "logistic-fit"
+#: the step schedule of the ``-schedule`` variants (and of ``baselines/gbmu-schedule.yaml``)
+VARIANT_SCHEDULE = StepSchedule("backtracking")
 
 # The illustrative network of Fig. 3: transmitter UE0, receivers UE1-UE3 in three directions with
 # d03 > d01 > d02, interferers I4-I6 on UE0's resource with l2 > l1 > l3 (metres).
@@ -167,20 +192,39 @@ def run_methods(
 
     p_min = model.p_min
     jd = Judge(judge, links, inputs, model)
+    variant_model: TwoDistanceModel | None = None
+    if any("logistic" in name for name in methods):
+        from cv2x_marl.experiments.baselines import load_shipped_model
+
+        variant_model = load_shipped_model(VARIANT_MODEL)
     out: dict[str, MethodRun] = {}
     for name in methods:
+        steering = variant_model if variant_model is not None and "logistic" in name else model
         if name == "optimum":
             res = optimum_climb(links, p_min, delta * iterations, iterations, progress, judge=jd)
-        elif name == "planner":  # GBMU's knowledge and model, a global search instead of gradient steps
-            steer = Judge("model", links, inputs, model)
+        elif name.startswith("planner"):  # GBMU's knowledge and model, a global search instead of gradient steps
+            steer = Judge("model", links, inputs, steering)
             res = optimum_climb(links, p_min, delta * iterations, iterations, progress, judge=steer)
         else:
+            schedule, utility = None, None
             if name == "oracle":
                 direction = oracle_direction(jd.success, jd.target, p_min, oracle_h_m)
             else:
-                direction = gbmu_direction(inputs, model, fairness=name == "gbmu")
+                direction = gbmu_direction(inputs, steering, fairness=name != "greedy")
+                if name.endswith("-schedule"):
+                    schedule, utility = VARIANT_SCHEDULE, SteeringUtility(inputs, steering)
             with tqdm(total=iterations, desc=name, unit="it", file=sys.stderr, disable=not progress) as bar:
-                res = climb(links.start_m, direction, delta, th_pos_m, iterations, record_every, progress=bar.update)
+                res = climb(
+                    links.start_m,
+                    direction,
+                    delta,
+                    th_pos_m,
+                    iterations,
+                    record_every,
+                    progress=bar.update,
+                    schedule=schedule,
+                    utility=utility,
+                )
         p0 = jd.success(links.start_m)
         pf = jd.success(res.final_m)
         curve = np.array([utility_log(jd.success(pos), jd.target, p_min) for pos in res.trajectory_m])
@@ -387,9 +431,9 @@ def run_study(
         raise ValueError(f"unknown case {case!r}; cases: {', '.join(CASES)}")
     if judge not in JUDGES:
         raise ValueError(f"unknown judge {judge!r}; judges: {', '.join(JUDGES)}")
-    bad = [m for m in methods if m not in METHODS]
+    bad = [m for m in methods if m not in ALL_METHODS]
     if bad:
-        raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(METHODS)}")
+        raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(ALL_METHODS)}")
     params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "judge": judge}
     with run_folder(out_dir, "gbmu", overwrite=overwrite, parameters=params):
         t0 = time.perf_counter()

@@ -13,7 +13,7 @@ import numpy as np
 
 from cv2x_marl.env.observation import ObservationLayout
 from cv2x_marl.policies.base import Actions, Observations
-from cv2x_marl.policies.gbmu import GbmuInputs, gbmu_direction
+from cv2x_marl.policies.gbmu import GbmuInputs, SteeringUtility, StepSchedule, armijo_move, gbmu_direction
 from cv2x_marl.regression.model import TwoDistanceModel
 from cv2x_marl.sim.kernels import link_summaries
 
@@ -40,6 +40,18 @@ class GbmuPolicy:
     action ``move / max_step_m``, clipped to the box. ``delta = 1`` is the paper's step; a larger
     ``delta`` covers in an env episode of ~100 steps the distance the paper's 10,000 in-node
     iterations cover.
+
+    Args:
+        model: the steering two-distance model (eq. 15, or its logistic version).
+        layout: the env's observation layout.
+        max_step_m: the env's offset of a full action (m).
+        delta: step size of step 3 (per env step).
+        fairness: eq. 12 (GBMU) or eq. 9 (greedy).
+        schedule: step-size schedule (:class:`~cv2x_marl.policies.gbmu.StepSchedule`); None: the
+            paper's constant ``delta``. ``decay`` counts env steps since :meth:`reset`;
+            ``backtracking`` runs Armijo's rule on the model's predicted utility along the move
+            projected onto the action box (so the move it accepts is the move the env makes, up to
+            the env's own bounds).
     """
 
     def __init__(
@@ -49,22 +61,39 @@ class GbmuPolicy:
         max_step_m: float,
         delta: float = 100.0,
         fairness: bool = True,
+        schedule: StepSchedule | None = None,
     ) -> None:
         self.model = model
         self.layout = layout
         self.max_step_m = max_step_m
         self.delta = delta
         self.fairness = fairness
+        self.schedule = schedule
         self.name = "gbmu" if fairness else "greedy"
+        self._k = 0  # GBMU iterations (env steps) since reset, for the decaying step
 
     def reset(self, seed: int | None = None) -> None:
-        return None
+        self._k = 0
 
     def act(self, observations: Observations) -> Actions:
         agents = list(observations)
         obs = np.stack([observations[a] for a in agents])
         inputs = decode_observations(obs, self.layout)
-        move = self.delta * gbmu_direction(inputs, self.model, self.fairness)(np.zeros((len(agents), 2)))
+        origin = np.zeros((len(agents), 2))
+        direction = gbmu_direction(inputs, self.model, self.fairness)(origin)
+        kind = "constant" if self.schedule is None else self.schedule.kind
+        if kind == "constant":
+            move = self.delta * direction
+        elif kind == "decay":
+            assert self.schedule is not None
+            move = float(self.schedule.step_size(self.delta, self._k)) * direction
+        else:
+            assert self.schedule is not None
+            lim = self.max_step_m
+            utility = SteeringUtility(inputs, self.model, self.fairness)
+            box = lambda m: np.clip(m, -lim, lim)  # noqa: E731 - the action box, in metres
+            move, _ = armijo_move(origin, direction, self.delta, utility, self.schedule, box)
+        self._k += 1
         act = np.clip(move / self.max_step_m, -1.0, 1.0).astype(np.float32)
         return dict(zip(agents, act, strict=True))
 
