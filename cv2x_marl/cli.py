@@ -358,6 +358,21 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from cv2x_marl.runs import run_folder
+    from cv2x_marl.validation.compare import main as compare_main
+
+    argv = ["--out", str(args.out), "--densities", *map(str, args.densities)]
+    argv += ["--packets-per-s", str(args.packets_per_s), "--tx-power-dbm", str(args.tx_power_dbm)]
+    argv += ["--subchannels", str(args.subchannels), "--subframes", str(args.subframes)]
+    argv += ["--seeds", *map(str, args.seeds)]
+    for item in args.set or []:
+        argv += ["--set", item]
+    params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
+    with run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
+        return compare_main(argv)
+
+
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
     from cv2x_marl.runs import run_folder
     from cv2x_marl.sim.sumo import export_scenario
@@ -604,6 +619,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_cmd_sumo_export)
+
+    p = sub.add_parser(
+        "validate",
+        help="PDR(d) and loss causes of the highway simulator against the analytical Mode 4 model of "
+        "Gonzalez-Martin et al. (IEEE TVT 2019; docs/validation.md)",
+    )
+    p.add_argument(
+        "--out", type=Path, required=True, help="output folder: validation.json, CSVs, one figure per density"
+    )
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument("--densities", type=POSITIVE_FLOAT, nargs="+", default=[0.1, 0.2, 0.3], help="veh/m")
+    p.add_argument("--packets-per-s", type=POSITIVE_FLOAT, default=10.0, help="packets per second per vehicle")
+    p.add_argument("--tx-power-dbm", type=float, default=20.0, help="transmit power (dBm)")
+    p.add_argument("--subchannels", type=int, default=4, choices=(2, 4), help="sub-channels per subframe")
+    p.add_argument("--subframes", type=COUNT, default=5000, help="measured subframes per seed")
+    p.add_argument("--seeds", type=SEED, nargs="+", default=[1, 2], help="simulator seeds (pooled)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a simulator key (repeatable)")
+    p.set_defaults(func=_cmd_validate)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
     _add_scenario_args(p)
