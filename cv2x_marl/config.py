@@ -625,5 +625,6 @@ def config_markdown() -> str:
             unit = f.metadata["unit"] or "-"
             default = json.dumps(f.default)
             allowed = _allowed(f.metadata) if tp is not bool else "true | false"
-            lines.append(f"| `{name}.{f.name}` | {tname} | {unit} | `{default}` | {allowed} | {f.metadata['doc']} |")
+            cells = [c.replace("|", "\\|") for c in (allowed, f.metadata["doc"])]  # a | inside a cell splits it
+            lines.append(f"| `{name}.{f.name}` | {tname} | {unit} | `{default}` | {cells[0]} | {cells[1]} |")
     return "\n".join(lines) + "\n"
