@@ -23,6 +23,8 @@ from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.io import dumps_json
 from cv2x_marl.rl.errors import TrainError
 
+#: agent-steps of `cv2x-marl train` when neither --timesteps nor the config file says
+DEFAULT_TIMESTEPS = 200_000
 #: dataset readings: ``per-packet`` (the settings as given) or ``paper`` (the paper's Table 3 instances)
 READINGS = ("per-packet", "paper")
 #: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
@@ -273,14 +275,16 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from cv2x_marl.rl.train import load_train_config, train
+    from cv2x_marl.rl.train import load_train_config, run_settings, train
 
     if args.algo != "ppo":
         raise TrainError(f"--algo {args.algo!r} is not available; algorithms: ppo")
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
-    record = train(
-        cfg, args.timesteps, args.seed, args.out, resume=args.resume, progress=not args.quiet, overwrite=args.overwrite
-    )
+    from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
+    timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", DEFAULT_TIMESTEPS)
+    seed = args.seed if args.seed is not None else from_file.get("seed", 0)
+    quiet, resume, overwrite = args.quiet, args.resume, args.overwrite
+    record = train(cfg, timesteps, seed, args.out, resume=resume, progress=not quiet, overwrite=overwrite)
     if args.json:
         _print_json(record)
     else:
@@ -548,8 +552,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
     p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS))
     p.add_argument("--algo", default="ppo")
-    p.add_argument("--timesteps", type=COUNT, default=200_000, help="total agent-steps")
-    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument(
+        "--timesteps",
+        type=COUNT,
+        default=None,
+        help=f"total agent-steps (default: the --config file's timesteps, else {DEFAULT_TIMESTEPS:,})",
+    )
+    p.add_argument("--seed", type=SEED, default=None, help="training seed (default: the --config file's, else 0)")
     p.add_argument("--copies", type=COUNT, default=None, help="env copies (each mover of each copy is a sub-env)")
     p.add_argument("--config", type=Path, help="YAML/JSON: env_id, copies, env, ppo, checkpoint_every, eval_*")
     p.add_argument("--out", type=Path, required=True, help="run folder")

@@ -130,14 +130,41 @@ class TrainConfig:
         return d
 
 
+#: what a run folder's ``train_config.json`` holds besides the configuration
+RUN_KEYS = ("seed", "timesteps")
+
+
+def run_settings(path: Path | None) -> dict[str, int]:
+    """The ``seed`` and ``timesteps`` a training file names (a run folder's ``train_config.json``
+    does), checked; empty for a plain configuration. ``cv2x-marl train --config FILE`` uses them
+    when ``--seed`` / ``--timesteps`` are not given, so a shipped run can be trained again as it was."""
+    from cv2x_marl.yamlcore import load_mapping
+
+    if path is None:
+        return {}
+    data = load_mapping(path, "training config", TrainError)
+    out: dict[str, int] = {}
+    for key, low in (("seed", 0), ("timesteps", 1)):
+        if key in data:
+            value = data[key]
+            if not is_int(value) or value < low:
+                raise TrainError(f"{path}: {key} must be an integer >= {low}, got {value!r}")
+            out[key] = int(value)
+    return out
+
+
 def load_train_config(path: Path | None, env_id: str | None = None, copies: int | None = None) -> TrainConfig:
     """Read a YAML/JSON file ``{env_id, copies, env: {...}, ppo: {...}, checkpoint_every, ...}``.
 
-    Unknown keys raise :class:`TrainError` naming them; CLI values override the file.
+    Unknown keys raise :class:`TrainError` naming them; CLI values override the file. A run
+    folder's ``train_config.json`` is a valid file: its ``seed`` and ``timesteps`` (the run's, see
+    :func:`run_settings`) are not part of the configuration and are skipped here.
     """
     from cv2x_marl.yamlcore import load_mapping
 
     data = {} if path is None else load_mapping(path, "training config", TrainError)
+    for key in RUN_KEYS:
+        data.pop(key, None)
     known = {f.name for f in dataclasses.fields(TrainConfig)}
     bad = sorted(set(data) - known)
     if bad:

@@ -126,6 +126,32 @@ def test_ppo_seed_gives_identical_parameters(tmp_path: Path) -> None:
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
 
 
+def test_a_run_trains_again_from_its_train_config(tmp_path: Path) -> None:
+    """`train --config RUN/train_config.json` takes the run's seed and length from the file (flags
+    still win), so a shipped run can be retrained as it was: same parameters, bit for bit."""
+    import json
+
+    from stable_baselines3 import PPO
+
+    from cv2x_marl.cli import main
+
+    cfg_file = tmp_path / "tiny.json"
+    cfg_file.write_text(json.dumps({**TINY.to_dict(), "seed": 5, "timesteps": 64}))
+    assert main(["train", "--config", str(cfg_file), "--out", str(tmp_path / "a"), "--quiet"]) == 0
+    first = json.loads((tmp_path / "a" / "train_config.json").read_text())
+    assert first["seed"] == 5 and first["timesteps"] == 64
+    again = ["train", "--config", str(tmp_path / "a" / "train_config.json"), "--out", str(tmp_path / "b"), "--quiet"]
+    assert main(again) == 0
+    digest = [parameters_digest(PPO.load(tmp_path / run / "model.zip", device="cpu")) for run in ("a", "b")]
+    assert digest[0] == digest[1]
+    other = ["train", "--config", str(cfg_file), "--seed", "6", "--timesteps", "32", "--out", str(tmp_path / "c")]
+    assert main([*other, "--quiet"]) == 0
+    third = json.loads((tmp_path / "c" / "train_config.json").read_text())
+    assert third["seed"] == 6 and third["timesteps"] == 32
+    cfg_file.write_text(json.dumps({**TINY.to_dict(), "seed": -1}))
+    assert main(["train", "--config", str(cfg_file), "--out", str(tmp_path / "d"), "--quiet"]) == 2
+
+
 def test_resume_continues_the_step_count(tmp_path: Path) -> None:
     run = tmp_path / "run"
     first = train(TINY, 128, seed=1, run_dir=run, progress=False)
