@@ -16,6 +16,15 @@ ROOT = Path(__file__).resolve().parent.parent
     [
         ("env_quickstart.py", ["SingleMover-v2, one episode", "share of the optimum 100%"]),
         ("sb3_ppo.py", ["PPO (256 steps)", "gbmu", "sensing"]),
+        # GBMU on the one held-out episode (seed 2026) of 8 steps is deterministic: +10.0 % utility gain
+        (
+            "cleanrl_ppo_vector.py",
+            [
+                "SingleMoverVectorEnvV2 with 4 copies, batched step: True",
+                "iteration 1:",
+                "GBMU         utility gain +10.0%",
+            ],
+        ),
         # GBMU on the one held-out episode (seed 2026) is deterministic: +11.3 % utility gain
         (
             "rllib_ppo.py",
