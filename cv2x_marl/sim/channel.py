@@ -190,3 +190,99 @@ class Shadowing:
 def rayleigh_power_gain(rng: np.random.Generator, size: int) -> FloatArray:
     """``|h|^2`` of Rayleigh fading: exponential with mean 1."""
     return rng.standard_exponential(size)
+
+
+class SparseShadowing:
+    """:class:`Shadowing` kept only for the pairs within ``link.max_range_m`` (corridor scale).
+
+    The same AR(1) process per unordered pair, with the state in three arrays over the pairs of the
+    last read, sorted by the key ``a * n + b`` (``a < b``): unit-variance ``Z``, and the odometer sum
+    (``travelled``) or the pair's distance (``pair_distance``) at that read. Memory is 24 bytes per
+    pair in range instead of 16 bytes per vehicle pair (``N x N``).
+
+    What differs from the dense :class:`Shadowing` (same marginal law, N(0, 1) per pair):
+
+    * a pair's initial ``Z`` is drawn at its first read (one normal per new pair, in key order,
+      before the update's normals), not in an ``N x N`` draw at construction; a pair read at its
+      first period is then updated exactly as the dense state updates it (``travelled``: from the
+      odometers at reset, 0; ``pair_distance``: no change at the first read);
+    * a pair not read in a period (out of range) is forgotten: when it comes back in range its ``Z``
+      is a fresh draw, where the dense state would carry the old value (``travelled``: correlation
+      ``exp(-D / d_c)`` with D the distance both travelled meanwhile, negligible on a highway;
+      ``pair_distance``: the correlation with the old value is lost).
+
+    Each :meth:`sample` must get every pair of the period in one call (the simulator does).
+    """
+
+    def __init__(
+        self, n: int, decorrelation_m: float, rng: np.random.Generator, correlation: str = "travelled"
+    ) -> None:
+        if correlation not in ("travelled", "pair_distance"):
+            raise ValueError(f"unknown shadowing correlation {correlation!r}; available: travelled, pair_distance")
+        self._n = n
+        self._keys = np.empty(0, dtype=np.int64)  # [P] sorted pair keys a * n + b, a < b
+        self._z = np.empty(0)  # [P] unit-variance shadowing
+        self._last = np.empty(0)  # [P] odometer sum (travelled) or pair distance (pair_distance), m
+        self._dc = decorrelation_m
+        self._rng = rng
+        self.correlation = correlation
+
+    @property
+    def n_pairs(self) -> int:
+        """Pairs whose state is kept (those of the last read)."""
+        return int(self._keys.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the kept state."""
+        return int(self._keys.nbytes + self._z.nbytes + self._last.nbytes)
+
+    def sample(
+        self,
+        a: NDArray[np.int64],
+        b: NDArray[np.int64],
+        odometer_m: FloatArray,
+        distance_m: FloatArray | None = None,
+    ) -> FloatArray:
+        """Unit-variance shadowing of the unordered pairs ``(a, b)`` (``a < b``), updated to now.
+
+        Args:
+            a, b: [P] the pairs' vehicles, ``a < b``, all pairs of the period.
+            odometer_m: [N] distance each vehicle travelled since reset (``travelled``), m.
+            distance_m: [P] the pairs' current distances, m (needed by ``pair_distance``).
+
+        Returns:
+            [P] the pairs' unit-variance shadowing (``Z``); the state then holds these pairs only.
+        """
+        keys = a * self._n + b
+        m = keys.shape[0]
+        if self._keys.shape[0]:
+            pos = np.minimum(np.searchsorted(self._keys, keys), self._keys.shape[0] - 1)
+            found = self._keys[pos] == keys
+        else:
+            pos = np.zeros(m, dtype=np.int64)
+            found = np.zeros(m, dtype=bool)
+        new = ~found
+        z_prev = np.empty(m)
+        z_prev[found] = self._z[pos[found]]
+        z_prev[new] = self._rng.standard_normal(int(new.sum()))
+        last = np.empty(m)
+        last[found] = self._last[pos[found]]
+        if self.correlation == "travelled":
+            last[new] = 0.0
+            odo = odometer_m[a] + odometer_m[b]
+            rho = np.exp(-(odo - last) / self._dc)
+        else:
+            if distance_m is None:
+                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
+            last[new] = np.nan
+            odo = np.asarray(distance_m, dtype=np.float64)
+            change_m = np.abs(odo - last)
+            rho = np.exp(-np.where(np.isnan(change_m), 0.0, change_m) / self._dc)
+        z = rho * z_prev + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(m)
+        if m > 1 and not np.all(keys[1:] > keys[:-1]):
+            order = np.argsort(keys, kind="stable")
+            self._keys, self._z, self._last = keys[order], z[order], odo[order]
+        else:
+            self._keys, self._z, self._last = keys, z.copy(), odo.copy()
+        return z

@@ -486,3 +486,341 @@ def link_summaries(p: FloatArray, target: NDArray[np.bool_], p_min: float) -> Fl
             if s2 > 0.0:
                 out[2, i] = s1 * s1 / (count * s2)
     return out
+
+
+@njit(cache=True)
+def _grow(a: NDArray[np.int64], size: int) -> NDArray[np.int64]:
+    out = np.empty(size, dtype=np.int64)
+    out[: a.shape[0]] = a
+    return out
+
+
+@njit(cache=True)
+def _min_image(d: float, box: float) -> float:
+    if math.isfinite(box):
+        return d - box * round(d / box)
+    return d
+
+
+@njit(cache=True)
+def pairs_within_range(
+    pos_m: FloatArray, box_m: FloatArray, range_m: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Unordered vehicle pairs at most ``range_m`` apart, sorted by ``(i, j)``, ``i < j``.
+
+    A sweep over the vehicles sorted along x (wrapped when the x axis is periodic): for each vehicle,
+    the others within ``range_m`` along x ahead and behind (each at most once, so a ring shorter than
+    twice the range is fine), kept when the minimum-image distance satisfies ``dx^2 + dy^2 <= r^2``.
+    The pairs of the KD-tree query it replaces in the sparse state (``query_pairs``), in the order
+    the simulator sorts those; cost ``O(N log N + N k)`` with k the vehicles within range along x.
+
+    Args:
+        pos_m: [N, 2] positions, m.
+        box_m: [2] period of each axis, m (inf: not periodic).
+        range_m: the cut-off, m.
+
+    Returns:
+        ``(i, j)``, each [P] int64.
+    """
+    n = pos_m.shape[0]
+    bx, by = box_m[0], box_m[1]
+    px = math.isfinite(bx)
+    x = pos_m[:, 0].copy()
+    if px:
+        x = x - bx * np.floor(x / bx)
+    order = np.argsort(x, kind="mergesort")
+    sx = x[order]
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    r2 = range_m * range_m
+    slack = range_m * (1.0 + 1e-9) + 1e-9  # the sweep along x never cuts a pair the distance test keeps
+    cap = max(1024, 16 * n)
+    out_i = np.empty(cap, dtype=np.int64)
+    out_j = np.empty(cap, dtype=np.int64)
+    tmp = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        k = rank[i]
+        cnt = 0
+        visited = 0
+        for s in range(1, n):
+            kk = k + s
+            shift = 0.0
+            if kk >= n:
+                if not px:
+                    break
+                kk -= n
+                shift = bx
+            if sx[kk] + shift - sx[k] > slack:
+                break
+            visited += 1
+            j = order[kk]
+            if j > i:
+                dx = _min_image(pos_m[j, 0] - pos_m[i, 0], bx)
+                dy = _min_image(pos_m[j, 1] - pos_m[i, 1], by)
+                if dx * dx + dy * dy <= r2:
+                    tmp[cnt] = j
+                    cnt += 1
+        for s in range(1, n - visited):
+            kk = k - s
+            shift = 0.0
+            if kk < 0:
+                if not px:
+                    break
+                kk += n
+                shift = bx
+            if sx[k] + shift - sx[kk] > slack:
+                break
+            j = order[kk]
+            if j > i:
+                dx = _min_image(pos_m[j, 0] - pos_m[i, 0], bx)
+                dy = _min_image(pos_m[j, 1] - pos_m[i, 1], by)
+                if dx * dx + dy * dy <= r2:
+                    tmp[cnt] = j
+                    cnt += 1
+        if m + cnt > cap:
+            cap = max(2 * cap, m + cnt)
+            out_i = _grow(out_i, cap)
+            out_j = _grow(out_j, cap)
+        row = np.sort(tmp[:cnt])
+        for c in range(cnt):
+            out_i[m + c] = i
+            out_j[m + c] = row[c]
+        m += cnt
+    return out_i[:m].copy(), out_j[:m].copy()
+
+
+@njit(cache=True)
+def period_power_sums(
+    rx: NDArray[np.int64],
+    tx: NDArray[np.int64],
+    rx_mw: FloatArray,
+    active: NDArray[np.bool_],
+    resource: NDArray[np.int64],
+    n_res: int,
+    n_vehicles: int,
+) -> tuple[FloatArray, int]:
+    """Power each receiver gets on each resource from the active transmitters, in link order.
+
+    The sum ``np.bincount(rx * n_res + resource[tx], weights=rx_mw)`` over the links whose
+    transmitter is active (same additions in the same order: equal to the last bit).
+
+    Args:
+        rx, tx: [L] the period's ordered pairs (receiver, transmitter).
+        rx_mw: [L] received power of each pair, mW.
+        active: [N] which vehicles transmit in the chunk.
+        resource: [N] each vehicle's reserved resource.
+        n_res: resources per period.
+        n_vehicles: N.
+
+    Returns:
+        ``total`` [N * n_res] (mW) and the number of links with an active transmitter.
+    """
+    total = np.zeros(n_vehicles * n_res)
+    count = 0
+    for k in range(rx.shape[0]):
+        t = tx[k]
+        if active[t]:
+            total[rx[k] * n_res + resource[t]] += rx_mw[k]
+            count += 1
+    return total, count
+
+
+@njit(cache=True)
+def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool) -> float:
+    """:func:`_per_success` with the table position found by a scalar bisection (the same index as
+    ``np.searchsorted(side="right") - 1``, without its per-call array overhead): equal results."""
+    k = per_sinr_db.shape[0]
+    if not sinr_db >= per_sinr_db[0]:  # also -inf and NaN
+        return 0.0
+    if sinr_db >= per_sinr_db[k - 1]:
+        return 1.0 - per[k - 1]
+    lo, hi = 0, k
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if per_sinr_db[mid] <= sinr_db:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo - 1
+    if log_domain:
+        a, b = math.log(per[j]), math.log(per[j + 1])
+        slope = (b - a) / (per_sinr_db[j + 1] - per_sinr_db[j])
+        return 1.0 - math.exp(slope * (sinr_db - per_sinr_db[j]) + a)
+    slope = (per[j + 1] - per[j]) / (per_sinr_db[j + 1] - per_sinr_db[j])
+    return 1.0 - (slope * (sinr_db - per_sinr_db[j]) + per[j])
+
+
+@njit(cache=True)
+def period_link_powers(
+    rx: NDArray[np.int64],
+    tx: NDArray[np.int64],
+    rx_mw: FloatArray,
+    active: NDArray[np.bool_],
+    resource: NDArray[np.int64],
+    n_res: int,
+    total_mw: FloatArray,
+    noise_mw: float,
+    n_links: int,
+) -> tuple[FloatArray, FloatArray]:
+    """Signal and signal over noise-plus-interference of the links whose transmitter is active.
+
+    Args:
+        rx, tx, rx_mw: [L_all] the period's ordered pairs and their received power (mW).
+        active, resource: [N] per vehicle.
+        n_res: resources per period.
+        total_mw: [N * n_res] :func:`period_power_sums`.
+        noise_mw: noise power, mW.
+        n_links: the links with an active transmitter (:func:`period_power_sums`).
+
+    Returns:
+        ``s_mw`` [n_links] and ``S / (I + N)`` [n_links] with ``I = max(total - S, 0)`` on the
+        link's resource (the numpy path's arithmetic, so equal to the last bit).
+    """
+    s_out = np.empty(n_links)
+    ratio = np.empty(n_links)
+    m = 0
+    for k in range(rx.shape[0]):
+        t = tx[k]
+        if not active[t]:
+            continue
+        s = rx_mw[k]
+        i_mw = max(total_mw[rx[k] * n_res + resource[t]] - s, 0.0)
+        s_out[m] = s
+        ratio[m] = s / (i_mw + noise_mw)
+        m += 1
+    return s_out, ratio
+
+
+@njit(cache=True)
+def period_link_outcomes(
+    rx: NDArray[np.int64],
+    tx: NDArray[np.int64],
+    distance_m: FloatArray,
+    active: NDArray[np.bool_],
+    resource: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    n_res: int,
+    sinr_db: FloatArray,
+    snr_db: FloatArray,
+    rx_dbm: FloatArray,
+    u: FloatArray,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    releasing: NDArray[np.bool_],
+    rsrp_offset_db: float,
+    period_rsrp_dbm: FloatArray,
+    bin_m: float,
+    n_bins: int,
+    n_causes: int,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int8],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+]:
+    """One chunk of the simulator's period (``Simulator._chunk``) for every link in one pass.
+
+    The links whose transmitter is active, in order, from their SINR, SNR and received power (dB,
+    from :func:`period_link_powers`): success ``P`` (``model``: per_table linear / log, threshold)
+    and ``P0``, outcome ``u < P`` and cause (half duplex, below sensitivity, propagation
+    ``u >= P0``, collision), the SCI RSRP of the sensing (in place, as ``np.maximum.at``), and the
+    PRR accumulators of :class:`cv2x_marl.sim.metrics.PrrAccumulator` for this chunk. The PER
+    interpolation is :func:`_per_success_bisect` (``np.interp``'s formula; ``exp`` is libm's with
+    ``log``): tested equal to the numpy path (outcomes, causes, P to 1e-12).
+
+    Args:
+        rx, tx, distance_m: [L_all] the period's ordered pairs and their distance (m).
+        active, resource, slot, releasing: [N] per vehicle.
+        n_res: resources per period.
+        sinr_db, snr_db, rx_dbm: [L] of the active links.
+        u: [L] the uniforms of the active links.
+        model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
+        per_sinr_db, per: [K] the PER table.
+        threshold_db: SINR threshold of the threshold model, dB.
+        sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
+        rsrp_offset_db: PSSCH power to RSRP (per resource element), dB.
+        period_rsrp_dbm: [N * n_res] the period's SCI RSRP, updated in place.
+        bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
+
+    Returns:
+        ``tx, rx, p, cause`` [L] of the links, then this chunk's ``bin_n, bin_decoded,
+        bin_expected`` [n_bins], ``bin_causes`` [n_causes * n_bins] (cause-major), ``node_n,
+        node_decoded, node_expected`` [N].
+    """
+    n = active.shape[0]
+    n_links = u.shape[0]
+    out_tx = np.empty(n_links, dtype=np.int64)
+    out_rx = np.empty(n_links, dtype=np.int64)
+    p_out = np.empty(n_links)
+    cause_out = np.empty(n_links, dtype=np.int8)
+    bin_n = np.zeros(n_bins, dtype=np.int64)
+    bin_dec = np.zeros(n_bins, dtype=np.int64)
+    bin_exp = np.zeros(n_bins)
+    bin_causes = np.zeros(n_causes * n_bins, dtype=np.int64)
+    node_n = np.zeros(n, dtype=np.int64)
+    node_dec = np.zeros(n, dtype=np.int64)
+    node_exp = np.zeros(n)
+    log_domain = model == MODEL_PER_TABLE_LOG
+    m = 0
+    for k in range(rx.shape[0]):
+        t = tx[k]
+        if not active[t]:
+            continue
+        r = rx[k]
+        key = r * n_res + resource[t]
+        if model == MODEL_THRESHOLD:
+            p = 1.0 if sinr_db[m] >= threshold_db else 0.0
+        else:
+            p = _per_success_bisect(sinr_db[m], per_sinr_db, per, log_domain)
+        outcome = u[m] < p
+        would0 = True  # read only when the link fails: then P0 decides propagation or collision
+        if not outcome:
+            if model == MODEL_THRESHOLD:
+                p0 = 1.0 if snr_db[m] >= threshold_db else 0.0
+            else:
+                p0 = _per_success_bisect(snr_db[m], per_sinr_db, per, log_domain)
+            would0 = u[m] < p0
+        hd = slot[r] == slot[t]
+        below = rx_dbm[m] < sensitivity_dbm
+        fail = hd or below
+        if fail:
+            p = 0.0
+            outcome = False
+        c = 0
+        if not outcome:
+            c = 4 if would0 else 3  # collision, propagation
+        if below:
+            c = 2
+        if hd:
+            c = 1
+        if not fail and not releasing[t]:
+            v = rx_dbm[m] - rsrp_offset_db
+            if v > period_rsrp_dbm[key]:
+                period_rsrp_dbm[key] = v
+        out_tx[m] = t
+        out_rx[m] = r
+        p_out[m] = p
+        cause_out[m] = c
+        b = math.floor(distance_m[k] / bin_m)  # numba: an int64
+        if b < n_bins:
+            bin_n[b] += 1
+            bin_dec[b] += outcome
+            bin_exp[b] += p
+            bin_causes[c * n_bins + b] += 1
+        if c != 1:
+            node_n[t] += 1
+            node_dec[t] += outcome
+            node_exp[t] += p
+        m += 1
+    return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp

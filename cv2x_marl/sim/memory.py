@@ -1,9 +1,11 @@
 """Memory limits up front: estimate a run's peak memory from the configuration, refuse early.
 
-The simulator keeps dense ``N x N`` state (shadowing, its pair index), per-period arrays over the
-vehicle pairs in range, and, with ``metrics.record_links``, a links table that grows by one row per
-(transmission, receiver). :func:`estimate_memory_bytes` adds these up from the configuration alone
-(no array is allocated), with per-element byte counts read off :mod:`cv2x_marl.sim.simulator`,
+The simulator keeps dense ``N x N`` state (shadowing, its pair index; with ``link.max_range_m`` and
+:data:`SPARSE_STATE_MIN_VEHICLES` vehicles or more, state over the pairs in range only:
+:func:`uses_sparse_state`), per-period arrays over the vehicle pairs in range, and, with
+``metrics.record_links``, a links table that grows by one row per (transmission, receiver).
+:func:`estimate_memory_bytes` adds these up from the configuration alone (no array is allocated),
+with per-element byte counts read off :mod:`cv2x_marl.sim.simulator`,
 :mod:`cv2x_marl.sim.channel` and :mod:`cv2x_marl.sim.sps` and checked against tracemalloc peaks of
 real runs (``tests/sim/test_memory.py``). :func:`check_memory` compares the estimate with the
 memory available and raises :class:`~cv2x_marl.config.ConfigError` naming the keys to change.
@@ -37,9 +39,11 @@ from cv2x_marl.config import ConfigError, ScenarioConfig
 __all__ = [
     "ENV_LIMIT",
     "LINK_ROW_BYTES",
+    "SPARSE_STATE_MIN_VEHICLES",
     "available_memory_bytes",
     "check_memory",
     "estimate_memory_bytes",
+    "uses_sparse_state",
 ]
 
 #: environment variable overriding the memory limit, in GB (10^9 bytes)
@@ -60,6 +64,9 @@ _SNAPSHOT_PER_CELL = 9  # Snapshot.los (bool) and .shadowing_db (float64) [N, N]
 _SNAPSHOT_BUILD_PER_PAIR = 170  # snapshot(): path loss and shadowing of the P pairs (measured 150-170)
 _GEOMETRY_PER_PAIR = 98  # _Geometry: rx, tx, distance, rel. speed, mean power, power [2P] (8 B), los [2P] (1 B)
 _PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the period's L links (measured 124)
+# _chunk_compiled (sparse state, no links table, no Rayleigh, no in-band emission): SINR, SNR, power in dB,
+# uniforms, and the log10 temporaries (the outcome arrays are last_links)
+_COMPILED_PERIOD_PER_LINK = 84  # (set so the estimate is 1.0-1.05x of 5,000 and 10,000-vehicle runs)
 _LAST_LINKS_PER_LINK = 25  # Simulator.last_links: tx, rx, p (8 B) and cause (1 B) of the last chunk
 _CO_CHANNEL_PER_TERM = 66  # _co_channel_terms + NSV/interferer distance of the links table (measured 60-66)
 _CO_CHANNEL_GRID_WRAP_PER_TERM = 110  # ... with minimum-image displacements on both axes (measured 108)
@@ -67,12 +74,28 @@ _RAYLEIGH_PER_TERM = 50  # link.model=rayleigh without the links table: the term
 _VEHICLE_BYTES = 400  # per-vehicle vectors (state, resources, counters, accumulators)
 _SELECT_PER_CANDIDATE = 70  # sps.select and the S-RSSI average, per (reselecting vehicle, candidate)
 
+#: with ``link.max_range_m`` set and at least this many vehicles, the simulator keeps its pair state
+#: sparse (shadowing over the pairs in range, no all-pairs index, the snapshot's N x N matrices built
+#: when read): docs/model.md, "Scale". Below it the dense state, so smaller runs keep their draws.
+SPARSE_STATE_MIN_VEHICLES = 2500
+
+# Sparse pair state, bytes per unordered pair in range P:
+_SPARSE_SHADOWING_PER_PAIR = 24  # SparseShadowing: keys (int64), Z and last read (float64)
+_SPARSE_SHADOWING_UPDATE_PER_PAIR = 90  # ... while updated: keys, positions, found, Z, last, rho, draws
+_LAZY_SNAPSHOT_PER_PAIR = 25  # _LazySnapshot until read: i, j (int64), LOS (bool), mean power (float64)
+
 #: below this estimate, check_memory does not read /proc/meminfo (the env builds small simulators often)
 QUICK_PASS_BYTES = 256 * 2**20
 
 # (configuration, subframes) that passed against the available memory in this process: not checked
 # against it again, since a previous Simulator of the same run loop may still hold its arrays
 _PASSED: set[tuple[ScenarioConfig, int]] = set()
+
+
+def uses_sparse_state(cfg: ScenarioConfig) -> bool:
+    """Whether the simulator keeps the sparse pair state: ``link.max_range_m`` set and at least
+    :data:`SPARSE_STATE_MIN_VEHICLES` vehicles."""
+    return cfg.link.max_range_m is not None and cfg.n_vehicles >= SPARSE_STATE_MIN_VEHICLES
 
 
 def _pairs_in_range(cfg: ScenarioConfig, n: int, length: float) -> float:
@@ -110,7 +133,9 @@ def estimate_memory_bytes(cfg: ScenarioConfig, n_subframes: int | None = None) -
     (about 10 microseconds). Numpy arrays only: the interpreter and its modules (some 180 MB
     resident) come on top. Measured: 1.0-1.2x the tracemalloc peak of small runs (grid and highway,
     links table on and off, Rayleigh, in-band emission, range cut-off), 1.04-1.07x the peak resident
-    size minus the interpreter's for runs of 800 to 10,000 vehicles.
+    size minus the interpreter's for runs of 800 to 10,000 vehicles; with the sparse pair state
+    (:func:`uses_sparse_state`) 1.0-1.3x of that for 5,000 to 20,000 vehicles on the highway at
+    0.1 veh/m, 2.8 km cut-off (``benchmarks/bench_scale.py``).
 
     Args:
         cfg: the scenario; ``cfg.n_vehicles`` is the resolved vehicle count (density x road length
@@ -151,9 +176,20 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
     record = record and n_sub > 0
     rows = links * math.ceil(n_sub / rri) if record else 0.0
 
-    pair_index = _PAIR_INDEX_PER_PAIR * p_all
-    shadowing = _SHADOWING_PER_CELL * cells
-    snapshot = _SNAPSHOT_PER_CELL * cells
+    sparse = cfg.link.max_range_m is not None and n >= SPARSE_STATE_MIN_VEHICLES  # uses_sparse_state for n
+    all_pairs = cfg.link.max_range_m is None  # Simulator._all_pairs only without a cut-off
+    pair_index = _PAIR_INDEX_PER_PAIR * p_all if all_pairs else 0.0
+    pair_index_build = _PAIR_INDEX_BUILD_PER_PAIR * p_all if all_pairs else 0.0
+    if sparse:
+        shadowing = _SPARSE_SHADOWING_PER_PAIR * p
+        shadowing_peak = shadowing + _SPARSE_SHADOWING_UPDATE_PER_PAIR * p
+        snapshot = _LAZY_SNAPSHOT_PER_PAIR * p
+        snapshot_build = 0.0
+    else:
+        shadowing = _SHADOWING_PER_CELL * cells
+        shadowing_peak = max(shadowing, _SHADOWING_INIT_PER_CELL * cells)
+        snapshot = _SNAPSHOT_PER_CELL * cells
+        snapshot_build = _SNAPSHOT_BUILD_PER_PAIR * p
     periods = max(1, sps.sensing_window_ms // rri)
     sensing = (4 * periods + 16) * n * n_res + (8 * n * rri if cfg.link.inband_emission_db is not None else 0)
     lo, hi = round(sps.counter_min * max(1.0, 100.0 / rri)), round(sps.counter_max * max(1.0, 100.0 / rri))
@@ -161,10 +197,12 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
     candidates = sps.selection_window_subframes * sps.n_subchannels
     select = reselecting * candidates * (_SELECT_PER_CANDIDATE + 9 * periods) + 4 * n * n_res
     geometry = _GEOMETRY_PER_PAIR * p
-    period = _PERIOD_PER_LINK * links
+    compiled = sparse and not record and not rayleigh and cfg.link.inband_emission_db is None
+    period = (_COMPILED_PERIOD_PER_LINK if compiled else _PERIOD_PER_LINK) * links
     last = _LAST_LINKS_PER_LINK * links
     if rayleigh:
-        period += 8 * cells + 32 * links  # dense mean-power lookup, fading gains
+        # mean-power lookup: dense N x N, or (sparse) a search of the pairs per co-channel term; fading gains
+        period += (40 * terms if sparse else 8 * cells) + 32 * links
     grid_wrap = cfg.road.kind == "grid" and cfg.road.wrap_distances
     per_term = _CO_CHANNEL_GRID_WRAP_PER_TERM if grid_wrap else _CO_CHANNEL_PER_TERM
     co_channel = (per_term if record else _RAYLEIGH_PER_TERM if rayleigh else 0) * terms
@@ -172,17 +210,18 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
 
     state = pair_index + shadowing + sensing + _VEHICLE_BYTES * n + last
     phases = (
-        _PAIR_INDEX_BUILD_PER_PAIR * p_all,  # Simulator.__init__
-        pair_index + _SHADOWING_INIT_PER_CELL * cells,  # reset: Shadowing.__init__
-        state + geometry + snapshot + _SNAPSHOT_BUILD_PER_PAIR * p,  # reset: snapshot()
+        pair_index_build,  # Simulator.__init__
+        pair_index + (shadowing if sparse else _SHADOWING_INIT_PER_CELL * cells),  # reset: Shadowing.__init__
+        state + geometry + snapshot + snapshot_build,  # reset: snapshot()
+        state + snapshot + geometry + shadowing_peak - shadowing,  # period geometry: shadowing update
         state + snapshot + geometry + period + co_channel + table,  # run: last period
         state + snapshot + geometry + period + select + table,  # run: end of a period, reselection
         state + snapshot + geometry + 2 * table,  # run: links concatenated at the end
     )
     return {
-        "pair_index": _PAIR_INDEX_BUILD_PER_PAIR * p_all,
-        "shadowing": max(shadowing, _SHADOWING_INIT_PER_CELL * cells),
-        "snapshot": snapshot + _SNAPSHOT_BUILD_PER_PAIR * p,
+        "pair_index": pair_index_build,
+        "shadowing": shadowing_peak,
+        "snapshot": snapshot + snapshot_build,
         "sensing": sensing + select,
         "pair_geometry": geometry,
         "period_temporaries": period + last,

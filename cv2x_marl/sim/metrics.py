@@ -108,3 +108,25 @@ class PrrAccumulator:
         if j >= self.n_bins or self.bin_n[j] == 0:
             return float("nan")
         return float(self.bin_decoded[j] / self.bin_n[j])
+
+    def add_counts(
+        self,
+        n_transmissions: int,
+        bin_n: NDArray[np.int64],
+        bin_decoded: NDArray[np.int64],
+        bin_expected: NDArray[np.float64],
+        bin_causes: NDArray[np.int64],
+        node_n: NDArray[np.int64],
+        node_decoded: NDArray[np.int64],
+        node_expected: NDArray[np.float64],
+    ) -> None:
+        """Add one batch already counted (:func:`cv2x_marl.sim.kernels.period_link_outcomes`): the
+        per-bin ``[n_bins]`` and per-node ``[N]`` sums of :meth:`add`, ``bin_causes`` cause-major."""
+        self.n_transmissions += n_transmissions
+        self.bin_n += bin_n
+        self.bin_decoded += bin_decoded
+        self.bin_expected += bin_expected
+        self.bin_causes += bin_causes.reshape(len(CAUSES), self.n_bins)
+        self.node_n += node_n
+        self.node_decoded += node_decoded
+        self.node_expected += node_expected

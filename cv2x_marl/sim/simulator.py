@@ -32,8 +32,8 @@ from numpy.typing import NDArray
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.rng import RngStreams
-from cv2x_marl.sim import channel, link, mobility, sps
-from cv2x_marl.sim.memory import check_memory
+from cv2x_marl.sim import channel, kernels, link, mobility, sps
+from cv2x_marl.sim.memory import check_memory, uses_sparse_state
 from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
 from cv2x_marl.sim.road import Road
 from cv2x_marl.units import db_to_linear, noise_power_dbm
@@ -91,6 +91,89 @@ class Snapshot:
     shadowing_db: FloatArray
     rri_ms: int
     n_subchannels: int
+
+
+class _PairMatrices:
+    """Builds a snapshot's ``[N, N]`` LOS and shadowing matrices from the unordered pairs in range.
+
+    Pairs out of range (no entry) read LOS and 0 dB, as before. The shadowing of a pair is its
+    large-scale loss minus the path loss: ``(EIRP - PL(d, LOS)) - mean received power``.
+    """
+
+    def __init__(
+        self,
+        config: ScenarioConfig,
+        road: Road,
+        n: int,
+        positions_m: FloatArray,
+        i: IntArray,
+        j: IntArray,
+        los: NDArray[np.bool_],
+        mean_rx_dbm: FloatArray,
+    ) -> None:
+        self.config, self.road, self.n = config, road, n
+        self.positions_m, self.i, self.j, self.los, self.mean_rx_dbm = positions_m, i, j, los, mean_rx_dbm
+
+    def copy(self) -> _PairMatrices:
+        """The same builder over copies of the pair arrays (the caller's may be views of larger ones)."""
+        return _PairMatrices(
+            self.config, self.road, self.n, self.positions_m, self.i.copy(), self.j.copy(), self.los.copy(),
+            self.mean_rx_dbm.copy(),
+        )  # fmt: skip
+
+    def __call__(self) -> tuple[NDArray[np.bool_], FloatArray]:
+        """``(los, shadowing_db)``, both ``[N, N]`` and symmetric."""
+        n, a, b = self.n, self.i, self.j
+        los = np.ones((n, n), dtype=bool)
+        sh = np.zeros((n, n))
+        los[a, b] = los[b, a] = self.los
+        d = self.positions_m[b] - self.positions_m[a]
+        disp = self.road.minimum_image(d) if self.config.road.wrap_distances else d
+        pl_free = channel.path_loss_db(self.config.channel, self.config.radio.carrier_hz, disp, self.los)
+        sh[a, b] = sh[b, a] = (_tx_eirp_dbm(self.config) - pl_free) - self.mean_rx_dbm
+        return los, sh
+
+
+class _LazyPairMatrix:
+    """``Snapshot.los`` / ``.shadowing_db`` of a :class:`_LazySnapshot`: built on first read, then kept."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._name = name
+
+    def __get__(self, obj: _LazySnapshot | None, objtype: type | None = None) -> np.ndarray:
+        if obj is None:
+            return self  # type: ignore[return-value]  # the descriptor itself, read on the class
+        los, sh = obj.__dict__.pop("_build")()
+        object.__setattr__(obj, "los", los)  # instance attributes from now on (this is not a data descriptor)
+        object.__setattr__(obj, "shadowing_db", sh)
+        return obj.__dict__[self._name]
+
+
+class _LazySnapshot(Snapshot):
+    """A :class:`Snapshot` whose ``[N, N]`` ``los`` and ``shadowing_db`` are built when first read.
+
+    With the sparse pair state (:func:`~cv2x_marl.sim.memory.uses_sparse_state`) :meth:`Simulator.reset`
+    returns one: until read it holds the pair arrays only (25 bytes per pair in range); the values,
+    once read, are those an eager snapshot has.
+    """
+
+    los = _LazyPairMatrix()
+    shadowing_db = _LazyPairMatrix()
+
+    @classmethod
+    def create(cls, fields: dict[str, object], build: _PairMatrices) -> _LazySnapshot:
+        """The snapshot with the given non-matrix ``fields`` and the matrices' builder."""
+        obj = object.__new__(cls)
+        for name, value in fields.items():
+            object.__setattr__(obj, name, value)
+        object.__setattr__(obj, "_build", build)
+        return obj
+
+
+def _tx_eirp_dbm(config: ScenarioConfig) -> float:
+    """Transmit power plus both antenna gains, dBm."""
+    r = config.radio
+    return r.tx_power_dbm + r.tx_antenna_gain_dbi + r.rx_antenna_gain_dbi
 
 
 @dataclass
@@ -155,8 +238,13 @@ class Simulator:
         self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
-        iu, ju = np.triu_indices(self.n, 1)
-        self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
+        self.sparse_state = uses_sparse_state(config)
+        #: the compiled period (_chunk_compiled) where it applies: with the sparse state
+        self.compiled_period = self.sparse_state
+        self._all_pairs: tuple[IntArray, IntArray] | None = None
+        if config.link.max_range_m is None:  # the KD-tree gives the pairs in range otherwise
+            iu, ju = np.triu_indices(self.n, 1)
+            self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
         self._source: MobilitySource | None = None
         if config.vehicles.mobility != "model":  # SUMO installed, files there: refuse now, not at reset
             from cv2x_marl.sim import sumo
@@ -179,7 +267,8 @@ class Simulator:
 
             self._source = sumo.open_source(cfg, self.rng.mobility)
             self.state = self._source.state
-        self.shadowing = channel.Shadowing(
+        shadowing_cls = channel.SparseShadowing if self.sparse_state else channel.Shadowing
+        self.shadowing: channel.Shadowing | channel.SparseShadowing = shadowing_cls(
             self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing, cfg.channel.shadowing_correlation
         )
         if cfg.traffic.synchronous:
@@ -261,27 +350,33 @@ class Simulator:
         """Positions, velocities, resources and channel state now (copies)."""
         self._check_ready()
         geo = self._period_geometry()
-        los = np.ones((self.n, self.n), dtype=bool)
-        sh = np.zeros((self.n, self.n))
         h = geo.rx.shape[0] // 2
-        a, b = geo.rx[:h], geo.tx[:h]
-        los[a, b] = los[b, a] = geo.los[:h]
-        pl_free = self._path_loss_db(geo, h)
-        shadow = (self._tx_eirp_dbm() - pl_free) - geo.mean_rx_dbm[:h]
-        sh[a, b] = sh[b, a] = shadow
-        return Snapshot(
-            subframe=self.subframe,
-            positions_m=geo.positions_m.copy(),
-            velocities_mps=mobility.velocities_mps(self.state),
-            slot=self.slot.copy(),
-            subchannel=self.subchannel.copy(),
-            generation_slot=self.generation_slot.copy(),
-            counter=self.counter.copy(),
-            los=los,
-            shadowing_db=sh,
-            rri_ms=self.rri,
-            n_subchannels=self.n_sub,
+        positions_m = geo.positions_m.copy()
+        fields: dict[str, object] = {
+            "subframe": self.subframe,
+            "positions_m": positions_m,
+            "velocities_mps": mobility.velocities_mps(self.state),
+            "slot": self.slot.copy(),
+            "subchannel": self.subchannel.copy(),
+            "generation_slot": self.generation_slot.copy(),
+            "counter": self.counter.copy(),
+            "rri_ms": self.rri,
+            "n_subchannels": self.n_sub,
+        }
+        build = _PairMatrices(
+            self.config,
+            self.road,
+            self.n,
+            positions_m,
+            geo.rx[:h],
+            geo.tx[:h],
+            geo.los[:h],
+            geo.mean_rx_dbm[:h],
         )
+        if self.sparse_state:  # the N x N matrices only when read (copies of the pair arrays until then)
+            return _LazySnapshot.create(fields, build.copy())
+        los, sh = build()
+        return Snapshot(los=los, shadowing_db=sh, **fields)  # type: ignore[arg-type]
 
     @property
     def vehicle_ids(self) -> list[str] | None:
@@ -324,7 +419,11 @@ class Simulator:
     def _pairs(self, pos: FloatArray) -> tuple[IntArray, IntArray]:
         rng_m = self.config.link.max_range_m
         if rng_m is None:
+            assert self._all_pairs is not None
             return self._all_pairs
+        if self.sparse_state:  # a compiled sweep along x: the KD-tree's pairs, sorted, ~4x faster at scale
+            box = self.road.periodic_box_m if self.config.road.wrap_distances else np.full(2, np.inf)
+            return kernels.pairs_within_range(np.ascontiguousarray(pos, dtype=np.float64), box, float(rng_m))
         from scipy.spatial import cKDTree  # only with a link cut-off: importing scipy.spatial costs ~0.8 s
 
         if self.config.road.wrap_distances:
@@ -338,14 +437,7 @@ class Simulator:
         return p[:, 0], p[:, 1]
 
     def _tx_eirp_dbm(self) -> float:
-        r = self.config.radio
-        return r.tx_power_dbm + r.tx_antenna_gain_dbi + r.rx_antenna_gain_dbi
-
-    def _path_loss_db(self, geo: _Geometry, h: int) -> FloatArray:
-        """Path loss of the unordered pairs (first half of the ordered arrays)."""
-        i, j = geo.rx[:h], geo.tx[:h]
-        disp = self.displacement_m(geo.positions_m[i], geo.positions_m[j])
-        return channel.path_loss_db(self.config.channel, self.config.radio.carrier_hz, disp, geo.los[:h])
+        return _tx_eirp_dbm(self.config)
 
     def _period_geometry(self) -> _Geometry:
         """Pair geometry and received powers for the current period (computed once per period)."""
@@ -376,7 +468,8 @@ class Simulator:
         geo.los = np.concatenate([los, los])
         geo.rel_speed_mps = np.concatenate([rel, rel])
         geo.mean_rx_dbm = np.concatenate([mean_dbm, mean_dbm])
-        rx_mw = db_to_linear(geo.mean_rx_dbm)
+        half_mw = db_to_linear(mean_dbm)  # element-wise: the same values as over both halves, at half the cost
+        rx_mw = np.concatenate([half_mw, half_mw])
         if ch.fading == "rayleigh":
             rx_mw = rx_mw * channel.rayleigh_power_gain(self.rng.fading, rx_mw.shape[0])
         geo.rx_mw = rx_mw
@@ -436,6 +529,14 @@ class Simulator:
         slot = self.slot
         active = (slot >= lo) & (slot < hi)
         if not np.any(active):
+            return
+        if (
+            self.compiled_period
+            and cols is None
+            and cfg.link.model != "rayleigh"
+            and cfg.link.inband_emission_db is None
+        ):
+            self._chunk_compiled(geo, active, acc)
             return
         sel = active[geo.tx]
         rx, tx = geo.rx[sel], geo.tx[sel]
@@ -521,6 +622,56 @@ class Simulator:
             cols["los"].append(geo.los[sel])
             cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
 
+    def _chunk_compiled(self, geo: _Geometry, active: NDArray[np.bool_], acc: PrrAccumulator | None) -> None:
+        """:meth:`_chunk` in compiled passes over the period's pairs (the sparse state, no links table,
+        ``link.model`` per_table or threshold, no in-band emission): the same draws, the same sums in
+        the same order and numpy's ``log10``; the PER interpolation compiled (``np.interp``'s formula),
+        tested equal to the numpy path (``tests/sim/test_scale.py``)."""
+        cfg = self.config
+        total, n_links = kernels.period_power_sums(geo.rx, geo.tx, geo.rx_mw, active, self.resource, self.n_res, self.n)
+        s_mw, ratio = kernels.period_link_powers(
+            geo.rx, geo.tx, geo.rx_mw, active, self.resource, self.n_res, total, self.noise_mw, n_links
+        )
+        sinr_db = 10.0 * np.log10(ratio)  # numpy's log10, as the numpy path
+        snr_db = 10.0 * np.log10(s_mw / self.noise_mw)
+        rx_dbm = 10.0 * np.log10(s_mw)
+        del s_mw, ratio
+        u = self.rng.link.random(n_links)
+        model = cfg.link.model
+        code = kernels.MODEL_THRESHOLD if model == "threshold" else self.curve.kernel_model
+        sens = cfg.radio.sensitivity_dbm
+        nb = acc.n_bins if acc is not None else 1
+        tx, rx, p, cause, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp = (
+            kernels.period_link_outcomes(
+                geo.rx,
+                geo.tx,
+                geo.distance_m,
+                active,
+                self.resource,
+                self.slot,
+                self.n_res,
+                sinr_db,
+                snr_db,
+                rx_dbm,
+                u,
+                code,
+                self.curve.sinr_db,
+                self.curve.per,
+                float(cfg.link.sinr_threshold_db),
+                -np.inf if sens is None else float(sens),
+                self._releasing,
+                float(self._rsrp_offset_db),
+                self._period_rsrp,
+                acc.bin_m if acc is not None else 1.0,
+                nb,
+                len(CAUSE_CODE),
+            )
+        )
+        self.last_links = (tx, rx, p, cause)
+        self._period_rssi += total
+        if acc is not None:
+            acc.add_counts(int(active.sum()), bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp)
+
     def _co_channel_terms(self, tx: IntArray, rx: IntArray, active: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
         """For every link, the other transmitters on its resource (one row per (link, interferer)).
 
@@ -570,6 +721,13 @@ class Simulator:
     def _mean_power_lookup(self, rx: IntArray, tx: IntArray) -> FloatArray:
         """Mean (unfaded) received power of arbitrary (rx, tx) pairs; 0 beyond the cut-off."""
         geo = self._period_geometry()
+        if self.sparse_state:  # pairs sorted by a * N + b (a < b); mean power symmetric
+            h = geo.rx.shape[0] // 2
+            keys = geo.rx[:h] * self.n + geo.tx[:h]
+            want = np.minimum(rx, tx) * self.n + np.maximum(rx, tx)
+            pos = np.minimum(np.searchsorted(keys, want), max(h - 1, 0))
+            found = keys[pos] == want if h else np.zeros(want.shape[0], dtype=bool)
+            return np.where(found, db_to_linear(geo.mean_rx_dbm[:h][pos]) if h else 0.0, 0.0)
         dense = np.zeros((self.n, self.n))
         dense[geo.rx, geo.tx] = db_to_linear(geo.mean_rx_dbm)
         return dense[rx, tx]
