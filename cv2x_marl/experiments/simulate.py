@@ -29,6 +29,56 @@ def write_parquet(table: pa.Table, path: Path) -> Path:
     return atomic_write(path, lambda p: pq.write_table(table, p))
 
 
+#: rows buffered before a row group of the streamed links table is written (bounded memory)
+ROW_GROUP_ROWS = 1 << 20
+
+
+class LinksWriter:
+    """The links table written as the run goes: row groups of :data:`ROW_GROUP_ROWS` rows into a
+    temporary file next to ``path``, renamed to ``path`` by :meth:`close` (atomic: a failed run
+    leaves no partial ``links.parquet``). Use as the simulator's ``links_sink``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.name}.tmp")
+        self.rows = 0
+        self._parts: list[pa.Table] = []
+        self._buffered = 0
+        self._writer: pq.ParquetWriter | None = None
+
+    def __call__(self, chunk: dict[str, np.ndarray]) -> None:
+        table = links_table(chunk)
+        self._parts.append(table)
+        self._buffered += table.num_rows
+        self.rows += table.num_rows
+        if self._buffered >= ROW_GROUP_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._parts:
+            return
+        table = pa.concat_tables(self._parts)
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(self.tmp, table.schema)
+        self._writer.write_table(table, row_group_size=max(table.num_rows, 1))
+        self._parts, self._buffered = [], 0
+
+    def close(self, empty: dict[str, np.ndarray]) -> Path:
+        """Finish the file (``empty``: the columns of a run without a single link) and rename it."""
+        self._flush()
+        if self._writer is None:
+            return write_parquet(links_table(empty), self.path)
+        self._writer.close()
+        self.tmp.replace(self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the temporary file (the run failed)."""
+        if self._writer is not None:
+            self._writer.close()
+        self.tmp.unlink(missing_ok=True)
+
+
 def simulate(
     cfg: ScenarioConfig,
     seed: int,
@@ -52,8 +102,16 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
     t0 = time.perf_counter()
     sim = Simulator(cfg)
     sim.reset(seed)
-    with tqdm(total=n_subframes, unit="sf", desc="simulate", file=sys.stderr, disable=not progress) as bar:
-        result = sim.run(n_subframes, progress=bar.update)
+    # the links table streams into links.parquet (bounded memory); without an output it is not kept
+    writer = LinksWriter(Path(out_dir) / "links.parquet") if out_dir is not None else None
+    sink = writer if writer is not None else (lambda chunk: None)
+    try:
+        with tqdm(total=n_subframes, unit="sf", desc="simulate", file=sys.stderr, disable=not progress) as bar:
+            result = sim.run(n_subframes, progress=bar.update, links_sink=sink)
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
     summary: dict[str, Any] = result.metrics.summary()
     summary.update(
         {
@@ -74,8 +132,10 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
     )
     if out_dir is not None:
         out_dir = Path(out_dir)
-        if result.links is not None:
-            write_parquet(links_table(result.links), out_dir / "links.parquet")
+        if cfg.metrics.record_links and writer is not None:
+            from cv2x_marl.sim.simulator import LINK_COLUMNS
+
+            writer.close({c: np.empty(0) for c in LINK_COLUMNS})
         write_json(out_dir / "summary.json", summary)
         from cv2x_marl.plotting import plot_prr_vs_distance
 

@@ -482,6 +482,7 @@ class Simulator:
         n_subframes: int,
         record: bool = True,
         progress: Callable[[int], object] | None = None,
+        links_sink: Callable[[dict[str, np.ndarray]], object] | None = None,
     ) -> RunResult:
         """Simulate ``n_subframes`` subframes from the current state.
 
@@ -489,9 +490,14 @@ class Simulator:
             n_subframes: subframes to simulate (need not be a whole number of periods).
             record: measure PRR and keep the links table (False: warm-up).
             progress: called with the number of subframes done after each period.
+            links_sink: with ``metrics.record_links``, receives the links table piece by piece (the
+                columns of each simulated part of a period, in order) instead of the run keeping it
+                in memory: memory stays bounded however long the run (``cv2x-marl simulate`` streams
+                them into ``links.parquet``).
 
         Returns:
-            The run's metrics and, when ``metrics.record_links``, the links table as columns.
+            The run's metrics and, when ``metrics.record_links`` and no ``links_sink``, the links
+            table as columns.
         """
         self._check_ready()
         if n_subframes < 0:
@@ -508,12 +514,17 @@ class Simulator:
             lo = self.subframe % self.rri
             hi = min(self.rri, lo + end - self.subframe)
             self._chunk(lo, hi, acc if record else None, cols if keep_links else None)
+            if keep_links and links_sink is not None and cols[LINK_COLUMNS[0]]:
+                links_sink({c: np.concatenate(v) for c, v in cols.items()})
+                for v in cols.values():
+                    v.clear()
             self.subframe += hi - lo
             if hi == self.rri:
                 self._end_period()
             if progress is not None:
                 progress(hi - lo)
-        links = {c: np.concatenate(v) if v else np.empty(0) for c, v in cols.items()} if keep_links else None
+        keep = keep_links and links_sink is None
+        links = {c: np.concatenate(v) if v else np.empty(0) for c, v in cols.items()} if keep else None
         return RunResult(acc, links, n_subframes, time.perf_counter() - t0)
 
     def _chunk(
