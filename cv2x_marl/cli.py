@@ -137,11 +137,14 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     if args.reading == "paper":
         if window_ms:
             raise ConfigError("--reading paper aggregates over the whole run; drop --aggregate-window-ms")
-        if any(s.split("=", 1)[0].strip() == "metrics.nsv_scope" for s in args.set or []):
+        if cfg.metrics.nsv_scope != "concurrent" and any(
+            s.split("=", 1)[0].strip() == "metrics.nsv_scope" for s in args.set or []
+        ):
             raise ConfigError("--reading paper sets metrics.nsv_scope=concurrent; drop --set metrics.nsv_scope")
         cfg = apply_overrides(cfg, ["metrics.nsv_scope=concurrent"])
-        # one subframe per ms; subframes are counted from the start of the warm-up: one window holds the run
-        window_ms = cfg.sim.warmup_subframes + cfg.sim.n_subframes
+        from cv2x_marl.experiments.dataset import WHOLE_RUN
+
+        window_ms = WHOLE_RUN  # one window per run, however long the warm-up (sim.warmup_mode)
     manifest = build_dataset(
         cfg,
         args.runs,
@@ -374,7 +377,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         argv += ["--set", item]
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
     with run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
-        return compare_main(argv)
+        return compare_main(argv, prog="cv2x-marl validate")
 
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
@@ -616,7 +619,12 @@ def build_parser() -> argparse.ArgumentParser:
         "export", help="write the generated SUMO scenario of a preset and seed (net, routes, .sumocfg, FCD trace)"
     )
     _add_scenario_args(p)
-    p.add_argument("--seed", type=SEED, default=0, help="run seed (the scenario `simulate --seed` would run)")
+    p.add_argument(
+        "--seed",
+        type=SEED,
+        default=0,
+        help="run seed (with a preset of vehicles.mobility=sumo, e.g. sumo-grid: the scenario `simulate --seed` runs)",
+    )
     p.add_argument(
         "--seconds",
         type=POSITIVE_FLOAT,

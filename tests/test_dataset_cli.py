@@ -41,16 +41,22 @@ def test_aggregated_dataset(tmp_path: Path) -> None:
 
 
 def test_paper_reading_is_concurrent_nsv_over_the_whole_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``--reading paper`` = the explicit settings ``--set metrics.nsv_scope=concurrent
-    --aggregate-window-ms <warm-up + measured subframes>`` (subframes count from the warm-up's start,
-    so that is one window for the whole run), sample for sample; ``fit`` then defaults to the rate."""
+    """``--reading paper`` = ``--set metrics.nsv_scope=concurrent`` with one aggregation window per
+    run, sample for sample (with the default fixed warm-up that is a window of warm-up + measured
+    subframes, as subframes count from the warm-up's start); ``fit`` then defaults to the rate."""
     _dataset(tmp_path / "paper", extra=("--reading", "paper"))
     _dataset(tmp_path / "explicit", extra=("--set", "metrics.nsv_scope=concurrent", "--aggregate-window-ms", "1700"))
     a = pq.read_table(tmp_path / "paper" / "samples.parquet")
     assert a.equals(pq.read_table(tmp_path / "explicit" / "samples.parquet"))
     manifest = json.loads((tmp_path / "paper" / "manifest.json").read_text())
-    assert manifest["aggregate_window_ms"] == 1700 and manifest["config"]["metrics"]["nsv_scope"] == "concurrent"
+    assert manifest["aggregate_window_ms"] == -1 and manifest["config"]["metrics"]["nsv_scope"] == "concurrent"
     assert set(a.column("window").to_pylist()) == {0}  # one window: the whole run
+    # a warm-up that runs on until every vehicle reselected still gives one window per run
+    _dataset(tmp_path / "long", extra=("--reading", "paper", "--set", "sim.warmup_mode=until_reselected"))
+    t = pq.read_table(tmp_path / "long" / "samples.parquet").to_pydict()
+    assert set(t["window"]) == {0}
+    groups = set(zip(t["run"], t["tx"], t["rx"], t["nsv"], strict=True))
+    assert len(groups) == len(t["window"])  # one instance per (run, link, NSV)
     capsys.readouterr()
     assert main(["fit", "--data", str(tmp_path / "paper"), "--out", str(tmp_path / "fit"), "--json"]) == 0
     capsys.readouterr()

@@ -325,3 +325,21 @@ def test_cli_validate_writes_a_run_folder(tmp_path: Path) -> None:
     run = json.loads((out / "run.json").read_text())
     assert run["command"] == "validate" and run["parameters"]["densities"] == [0.02]
     assert cli_main(args) == 2  # a second run does not mix into the first without --overwrite
+
+
+def test_empty_bins_are_written_as_null_and_cli_errors_name_the_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cv2x_marl.cli import main as cli_main
+    from cv2x_marl.validation.compare import _json_safe
+
+    assert _json_safe({"a": [1.0, math.nan], "b": {"c": math.inf}, "d": "x"}) == {
+        "a": [1.0, None],
+        "b": {"c": None},
+        "d": "x",
+    }
+    with pytest.raises(SystemExit) as exc:  # argparse's own usage error, as for every command
+        cli_main(["validate", "--out", str(tmp_path / "v"), "--packets-per-s", "3"])
+    assert exc.value.code == 2 and not (tmp_path / "v").exists()  # the run folder was rolled back
+    err = capsys.readouterr().err
+    assert "cv2x-marl validate" in err and "python -m" not in err

@@ -428,6 +428,25 @@ class MoverBatch:
             env._live = set()
 
 
+#: env methods that change a copy's episode: through a batch they would leave its stacks stale
+EPISODE_METHODS = ("reset", "step", "step_mover")
+#: env attributes the batch reads once (its kernel constants, its checks): not to be set on a copy
+BATCH_ATTRIBUTES = (
+    "config", "truth_los", "max_cycles", "max_step_m", "settle_steps", "max_drift_m", "roi", "action_mode",
+    "normalise_reward", "reward_form", "p_min", "layout", "model", "model_name", "mover_mask", "replan_every",
+    "links", "box_m",
+)  # fmt: skip
+
+
+def refuse_episode_method(name: str, where: str) -> None:
+    """Raise if ``name`` would change a batched copy's episode behind the batch's back."""
+    if name in EPISODE_METHODS:
+        raise RuntimeError(
+            f"{where}({name!r}) on a batched copy would desynchronise it from the batch; reset copies through "
+            "the vector env (reset(seed=..., options={'reset_mask': mask}) or VecEnv.reset) and step them together"
+        )
+
+
 def _signature(env: MobilityEnv) -> tuple[Any, ...]:
     """What must agree between the copies of a batch (scenario, options, layout, model)."""
     return (

@@ -42,6 +42,18 @@ TRAFFIC_ACTIONS = ("offset", "speed")
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 
 
+def check_copies(env: MobilityEnv, copies: int) -> None:
+    """Refuse several copies of a traffic-mode env on SUMO lockstep in one process: libsumo runs one
+    simulation per process, so each copy's reset would stop the others' (use one process per copy,
+    e.g. ``vectorization_mode="async"``, or a trace: ``vehicles.mobility=trace``)."""
+    if copies > 1 and env.mode == "traffic" and env.config.vehicles.mobility == "sumo":
+        raise ValueError(
+            f"{copies} copies of a traffic-mode env with vehicles.mobility=sumo cannot share one process "
+            "(libsumo runs one simulation per process); use one process per copy (vectorization_mode='async') "
+            "or replay a trace (vehicles.mobility=trace)"
+        )
+
+
 def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
     if not ok:
         raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
@@ -739,6 +751,10 @@ class MobilityEnv(ParallelEnv):
         return img
 
     def close(self) -> None:
+        """Close the figure and stop the simulator's SUMO run (``vehicles.mobility=sumo``), if any."""
+        sim = getattr(self, "sim", None)
+        if sim is not None:
+            sim.close()
         if self._fig is not None:
             import matplotlib.pyplot as plt
 

@@ -32,8 +32,8 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from cv2x_marl.checks import is_int
-from cv2x_marl.env.batched import MoverBatch, batch_problem
-from cv2x_marl.env.mobility_env import INFO_KEYS
+from cv2x_marl.env.batched import MoverBatch, batch_problem, refuse_episode_method
+from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
 from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
@@ -72,7 +72,9 @@ class SingleMoverVectorEnv(VectorEnv):
             mode = autoreset_mode if isinstance(autoreset_mode, AutoresetMode) else AutoresetMode(autoreset_mode)
         except ValueError:
             raise ValueError(f"invalid autoreset_mode={autoreset_mode!r}; allowed: {_MODES}") from None
-        self.envs = [self.single_env(render_mode=render_mode, **kwargs) for _ in range(int(num_envs))]
+        first = self.single_env(render_mode=render_mode, **kwargs)
+        check_copies(first.par, int(num_envs))
+        self.envs = [first, *(self.single_env(render_mode=render_mode, **kwargs) for _ in range(int(num_envs) - 1))]
         self.num_envs = int(num_envs)
         self.autoreset_mode = mode
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
@@ -203,7 +205,9 @@ class SingleMoverVectorEnv(VectorEnv):
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
         """Call method ``name`` (or read attribute ``name``) of every copy. The copies see the batch's
-        current state; methods that change a copy (``step``) are for the unbatched mode only."""
+        current state; ``reset`` / ``step`` of a copy are refused while batched (use the vector env's)."""
+        if self.batch is not None:
+            refuse_episode_method(name, "call")
         out = []
         for env in self._synced():
             attr = getattr(env, name)

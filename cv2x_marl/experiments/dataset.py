@@ -36,9 +36,15 @@ class DatasetError(ValueError):
     """A dataset folder is missing, incomplete or corrupt."""
 
 
+#: ``aggregate_window_ms`` of one window per run, whatever the warm-up (``--reading paper``)
+WHOLE_RUN = -1
+
+
 def _aggregate(cols: dict[str, np.ndarray], window_ms: int, n_vehicles: int) -> dict[str, np.ndarray]:
-    """Group per (run, tx, rx, window, NSV): mean d, l, P; empirical rate; count."""
-    window = cols["subframe"] // window_ms
+    """Group per (run, tx, rx, window, NSV): mean d, l, P; empirical rate; count.
+    ``window_ms`` = :data:`WHOLE_RUN`: one window per run (window 0)."""
+    subframe = cols["subframe"]
+    window = np.zeros_like(subframe) if window_ms == WHOLE_RUN else subframe // window_ms
     nsv = np.minimum(cols["nsv"].astype(np.int64), 255)
     key = (
         ((cols["run"].astype(np.int64) * n_vehicles + cols["tx"]) * n_vehicles + cols["rx"]) * (window.max() + 1)
@@ -79,7 +85,9 @@ def build_dataset(
 
     Samples are the links to target receivers (half-duplex pairs are not targets, paper Sec. 4)
     with ``d_m``, ``l_m``, ``nsv``, ``p_success``, ``outcome`` (per transmission), or, with
-    ``aggregate_window_ms > 0``, per (run, link, window, NSV) means with the empirical ``rate``.
+    ``aggregate_window_ms > 0``, per (run, link, window, NSV) means with the empirical ``rate``
+    (windows of subframes counted from the start of the warm-up; :data:`WHOLE_RUN`: one window,
+    the whole measured run, however long the warm-up).
     ``out_dir`` is a run folder (:class:`cv2x_marl.runs.RunFolder`); the manifest records the
     SHA-256 of ``samples.parquet``, checked by :func:`load_dataset`. With ``ray`` the runs are
     Ray tasks (:func:`cv2x_marl.parallel.map_on_ray`; a local Ray, or the cluster at ``address``):
@@ -87,8 +95,10 @@ def build_dataset(
     """
     if runs < 1:
         raise DatasetError(f"--runs must be >= 1, got {runs}")
-    if aggregate_window_ms < 0:
-        raise DatasetError(f"--aggregate-window-ms must be >= 0, got {aggregate_window_ms}")
+    if aggregate_window_ms < 0 and aggregate_window_ms != WHOLE_RUN:
+        raise DatasetError(
+            f"--aggregate-window-ms must be >= 0 (or {WHOLE_RUN}: the whole run), got {aggregate_window_ms}"
+        )
     if not cfg.metrics.record_links:
         raise DatasetError("metrics.record_links=false leaves no link samples; set it to true")
     params = {"runs": runs, "seed": seed, "aggregate_window_ms": aggregate_window_ms}

@@ -32,8 +32,8 @@ except ImportError as _exc:  # the train extra is not installed
 
     raise missing_extra("stable_baselines3", "the SB3 adapter (cv2x_marl.rl)", _exc) from _exc
 
-from cv2x_marl.env.batched import MoverBatch, batch_problem
-from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv
+from cv2x_marl.env.batched import BATCH_ATTRIBUTES, MoverBatch, batch_problem, refuse_episode_method
+from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv, check_copies
 
 
 class AgentsVecEnv(VecEnv):
@@ -65,8 +65,9 @@ class AgentsVecEnv(VecEnv):
             raise ValueError(f"start_pool must be None or an integer >= 1, got {start_pool!r}")
         self.start_pool = start_pool
         self._pool: list[int] | None = None
-        self.envs = [env_fn() for _ in range(n_copies)]
-        first = self.envs[0]
+        first = env_fn()
+        check_copies(first, n_copies)
+        self.envs = [first, *(env_fn() for _ in range(n_copies - 1))]
         self.movers = [a for a in first.possible_agents if first.mover_mask[first.agent_index[a]]]
         self.m = len(self.movers)
         self.k = n_copies
@@ -194,10 +195,17 @@ class AgentsVecEnv(VecEnv):
         return [getattr(self.envs[k], attr_name) for k in self._synced(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        if self.batch is not None and attr_name in BATCH_ATTRIBUTES:
+            raise RuntimeError(
+                f"set_attr({attr_name!r}) on batched copies: the batch read it once; build the VecEnv with "
+                "the new value instead"
+            )
         for k in set(self._copies(indices)):
             setattr(self.envs[k], attr_name, value)
 
     def env_method(self, method_name: str, *args: Any, indices: VecEnvIndices = None, **kwargs: Any) -> list[Any]:
+        if self.batch is not None:
+            refuse_episode_method(method_name, "env_method")
         return [getattr(self.envs[k], method_name)(*args, **kwargs) for k in self._synced(indices)]
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:

@@ -125,14 +125,19 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child
 def run_tool(name: str, args: Sequence[str], cwd: Path | None = None) -> None:
     """Run a SUMO binary (``netgenerate``, ``sumo``) to completion.
 
-    The child dies with this process (Linux), and ``subprocess.run`` kills it on an interrupt.
+    The child dies with this process (Linux, ``PR_SET_PDEATHSIG``; set only while this process has a
+    single thread, because code run between fork and exec can deadlock in a threaded parent), and
+    ``subprocess.run`` kills it on an interrupt.
 
     Raises:
         SumoError: the tool failed (its error output is in the message).
     """
     cmd = [str(_tool(name)), *args]
     env = dict(os.environ, SUMO_HOME=str(sumo_home()))
-    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, preexec_fn=_die_with_parent)
+    import threading
+
+    preexec = _die_with_parent if threading.active_count() == 1 else None
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, preexec_fn=preexec)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip()[-2000:]
         raise SumoError(f"{name} failed (exit {proc.returncode}): {' '.join(cmd)}\n{tail}")

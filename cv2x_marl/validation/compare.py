@@ -289,11 +289,22 @@ def _figure(result: dict[str, Any], settings: dict[str, Any], path: Path) -> Non
     _write_atomic(path, buf.getvalue())
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with NaN / inf floats (a distance bin without samples) as null, recursively."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def write_outputs(out_dir: Path, settings: dict[str, Any], results: list[dict[str, Any]]) -> list[Path]:
     """Write JSON, the two CSVs and one figure per density into ``out_dir``; return the paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     keys = ["pdr"] + [k for _, k in CAUSES]
-    doc = {"reference": _REFERENCE, "settings": settings, "veins": VEINS_NOTE, "densities": results}
+    doc = _json_safe({"reference": _REFERENCE, "settings": settings, "veins": VEINS_NOTE, "densities": results})
     paths = [out_dir / "validation.json", out_dir / "pdr_vs_distance.csv", out_dir / "table.csv"]
     _write_atomic(paths[0], (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     rows = []
@@ -329,10 +340,11 @@ def _positive_float(text: str) -> float:
     return v
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m cv2x_marl.validation.compare --out DIR [options]``."""
+def main(argv: Sequence[str] | None = None, prog: str = "python -m cv2x_marl.validation.compare") -> int:
+    """Command line: ``python -m cv2x_marl.validation.compare --out DIR [options]`` (``cv2x-marl
+    validate`` calls it with its own ``prog``, so errors name that command)."""
     ap = argparse.ArgumentParser(
-        prog="python -m cv2x_marl.validation.compare",
+        prog=prog,
         description="PDR(d) and loss causes: simulator vs the analytical model of Gonzalez-Martin et al. (2019)",
     )
     ap.add_argument("--out", required=True, type=Path, help="output folder (created; files are replaced)")

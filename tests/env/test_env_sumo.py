@@ -89,3 +89,18 @@ def test_speed_mode_needs_sumo_traffic(tmp_path: Path) -> None:
         parallel_env(preset="sumo-grid", traffic_action="speed")  # snapshot mode
     with pytest.raises(ValueError, match="traffic_action"):
         parallel_env(preset="sumo-grid", mode="traffic", traffic_action="throttle")
+
+
+def test_close_stops_sumo_and_copies_in_one_process_are_refused() -> None:
+    from cv2x_marl.env.vector import SingleMoverVectorEnv
+    from cv2x_marl.rl.vec_env import AgentsVecEnv
+
+    env = parallel_env(preset="sumo-grid", overrides=SHORT, mode="traffic", max_cycles=3, traffic_action="speed")
+    env.reset(seed=1)
+    lock = sumo.lockstep_of(env.sim)
+    env.close()
+    assert lock.closed
+    with pytest.raises(ValueError, match="cannot share one process"):
+        AgentsVecEnv(lambda: parallel_env(preset="sumo-grid", mode="traffic", movers=[0]), 2)
+    with pytest.raises(ValueError, match="cannot share one process"):
+        SingleMoverVectorEnv(2, preset="sumo-grid", mode="traffic")

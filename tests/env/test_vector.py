@@ -233,3 +233,19 @@ def test_make_vec_resolves_in_a_fresh_process() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["SingleMoverVectorEnvV2", "True", "(2,", "174)", "(2,", "174)"]
+
+
+def test_batched_copies_refuse_what_would_desynchronise_them() -> None:
+    from cv2x_marl.rl.vec_env import AgentsVecEnv
+
+    envs = SingleMoverVectorEnv(2, max_cycles=4)
+    envs.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"call\('reset'\) on a batched copy would desynchronise it"):
+        envs.call("reset", seed=1)
+    assert envs.call("render_mode") == (None, None)  # reading is fine
+    sb3 = AgentsVecEnv(lambda: SingleMoverEnv(max_cycles=4).par, 2)
+    sb3.reset()
+    with pytest.raises(RuntimeError, match=r"env_method\('step_mover'\)"):
+        sb3.env_method("step_mover", np.zeros(2))
+    with pytest.raises(RuntimeError, match=r"set_attr\('max_cycles'\) on batched copies"):
+        sb3.set_attr("max_cycles", 9)
