@@ -397,6 +397,13 @@ class LinkConfig(Section):
         1.0,
         1e6,
     )
+    pair_state: str = _key(
+        "auto",
+        "Pair state with max_range_m set: dense: N x N shadowing and an all-pairs index; sparse: only the pairs "
+        "in range (a pair's shadowing is drawn when it first comes in range and forgotten when it leaves; "
+        "docs/model.md, Scale); auto: sparse from 2,500 vehicles up. Without max_range_m it is always dense",
+        choices=("auto", "dense", "sparse"),
+    )
 
 
 @dataclass(frozen=True)

@@ -93,9 +93,11 @@ _PASSED: set[tuple[ScenarioConfig, int]] = set()
 
 
 def uses_sparse_state(cfg: ScenarioConfig) -> bool:
-    """Whether the simulator keeps the sparse pair state: ``link.max_range_m`` set and at least
-    :data:`SPARSE_STATE_MIN_VEHICLES` vehicles."""
-    return cfg.link.max_range_m is not None and cfg.n_vehicles >= SPARSE_STATE_MIN_VEHICLES
+    """Whether the simulator keeps the sparse pair state: ``link.max_range_m`` set and
+    ``link.pair_state`` ``sparse``, or ``auto`` with at least :data:`SPARSE_STATE_MIN_VEHICLES` vehicles."""
+    if cfg.link.max_range_m is None or cfg.link.pair_state == "dense":
+        return False
+    return cfg.link.pair_state == "sparse" or cfg.n_vehicles >= SPARSE_STATE_MIN_VEHICLES
 
 
 def _pairs_in_range(cfg: ScenarioConfig, n: int, length: float) -> float:

@@ -260,3 +260,20 @@ def test_pair_sweep_equals_the_kd_tree(box: tuple[float, float], range_m: float)
     assert p.shape[0] > 0
     np.testing.assert_array_equal(i, p[:, 0])
     np.testing.assert_array_equal(j, p[:, 1])
+
+
+def test_pair_state_key_chooses_the_state() -> None:
+    from cv2x_marl.config import ConfigError, apply_overrides, preset
+
+    hw = preset("highway")  # link.max_range_m is set there
+    assert hw.link.max_range_m is not None and hw.link.pair_state == "auto"
+    assert not uses_sparse_state(hw)  # 200 vehicles: below the auto threshold
+    assert uses_sparse_state(apply_overrides(hw, ["link.pair_state=sparse"]))
+    big = apply_overrides(hw, ["vehicles.density_veh_per_m=null", "vehicles.n_vehicles=3000"])
+    assert uses_sparse_state(big) and not uses_sparse_state(apply_overrides(big, ["link.pair_state=dense"]))
+    no_cut = apply_overrides(preset("paper"), ["link.pair_state=sparse"])
+    assert not uses_sparse_state(no_cut)  # without a cut-off every pair is in range: dense
+    with pytest.raises(ConfigError, match=r"link.pair_state.*auto \| dense \| sparse"):
+        apply_overrides(hw, ["link.pair_state=compact"])
+    sim = Simulator(apply_overrides(hw, ["link.pair_state=sparse", "sim.warmup_subframes=100"]))
+    assert isinstance(sim.reset(0), _LazySnapshot)
