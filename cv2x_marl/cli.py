@@ -367,17 +367,21 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from cv2x_marl.runs import run_folder
-    from cv2x_marl.validation.compare import main as compare_main
+    from cv2x_marl.validation.compare import run_validation
 
-    argv = ["--out", str(args.out), "--densities", *map(str, args.densities)]
-    argv += ["--packets-per-s", str(args.packets_per_s), "--tx-power-dbm", str(args.tx_power_dbm)]
-    argv += ["--subchannels", str(args.subchannels), "--subframes", str(args.subframes)]
-    argv += ["--seeds", *map(str, args.seeds)]
-    for item in args.set or []:
-        argv += ["--set", item]
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
     with run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
-        return compare_main(argv, prog="cv2x-marl validate")
+        run_validation(
+            args.out,
+            args.densities,
+            args.packets_per_s,
+            args.tx_power_dbm,
+            args.subchannels,
+            args.subframes,
+            args.seeds,
+            args.set or [],
+        )
+    return 0
 
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:

@@ -338,8 +338,7 @@ def test_empty_bins_are_written_as_null_and_cli_errors_name_the_command(
         "b": {"c": None},
         "d": "x",
     }
-    with pytest.raises(SystemExit) as exc:  # argparse's own usage error, as for every command
-        cli_main(["validate", "--out", str(tmp_path / "v"), "--packets-per-s", "3"])
-    assert exc.value.code == 2 and not (tmp_path / "v").exists()  # the run folder was rolled back
+    assert cli_main(["validate", "--out", str(tmp_path / "v"), "--packets-per-s", "3"]) == 2
+    assert not (tmp_path / "v").exists()  # the run folder was rolled back
     err = capsys.readouterr().err
-    assert "cv2x-marl validate" in err and "python -m" not in err
+    assert err.startswith("cv2x-marl: error: packets_per_s must give a whole reservation interval")

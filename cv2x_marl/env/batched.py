@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cv2x_marl.env.observation import FEATURES, OWN, OWN_V1, _observation_kernel
+from cv2x_marl.env.observation import OWN_V1, _observation_kernel
 from cv2x_marl.sim import kernels
 from cv2x_marl.sim.kernels import _moved_signal_dbm, _success_at_level
 
@@ -306,7 +306,6 @@ class MoverBatch:
         #: copies that hold an episode (loaded since construction)
         self.loaded = np.zeros(self.k, dtype=bool)
         self._const: tuple[Any, ...] | None = None  # the kernel's constants, from the first loaded copy
-        assert OWN == 5 and FEATURES == 7  # the layout _observation_kernel writes
 
     def _constants(self, env: MobilityEnv) -> tuple[Any, ...]:
         """The kernel arguments every copy shares (links, options, layout, model), from a reset env."""
@@ -430,12 +429,13 @@ class MoverBatch:
 
 #: env methods that change a copy's episode: through a batch they would leave its stacks stale
 EPISODE_METHODS = ("reset", "step", "step_mover")
-#: env attributes the batch reads once (its kernel constants, its checks): not to be set on a copy
-BATCH_ATTRIBUTES = (
+#: env options every copy of a batch must share: the batch reads them once (its kernel constants)
+SHARED_OPTIONS = (
     "config", "truth_los", "max_cycles", "max_step_m", "settle_steps", "max_drift_m", "roi", "action_mode",
-    "normalise_reward", "reward_form", "p_min", "layout", "model", "model_name", "mover_mask", "replan_every",
-    "links", "box_m",
+    "normalise_reward", "reward_form", "p_min", "layout", "model_name", "mover_mask", "replan_every", "box_m",
 )  # fmt: skip
+#: env attributes not to be set on a batched copy: the shared options and what they load
+BATCH_ATTRIBUTES = (*SHARED_OPTIONS, "model", "links")
 
 
 def refuse_episode_method(name: str, where: str) -> None:
@@ -447,21 +447,6 @@ def refuse_episode_method(name: str, where: str) -> None:
         )
 
 
-def _signature(env: MobilityEnv) -> tuple[Any, ...]:
-    """What must agree between the copies of a batch (scenario, options, layout, model)."""
-    return (
-        repr(env.config),
-        env.truth_los,
-        env.max_cycles,
-        env.max_step_m,
-        env.settle_steps,
-        env.max_drift_m,
-        env.roi,
-        env.action_mode,
-        env.normalise_reward,
-        env.reward_form,
-        env.p_min,
-        repr(env.layout),
-        env.model_name,
-        env.fast_mover,
-    )
+def _signature(env: MobilityEnv) -> tuple[str, ...]:
+    """What must agree between the copies of a batch: :data:`SHARED_OPTIONS` (by value)."""
+    return tuple(repr(getattr(env, name)) for name in SHARED_OPTIONS)

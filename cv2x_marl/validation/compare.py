@@ -20,7 +20,6 @@ Every file is written to a temporary name in ``--out`` and renamed into place.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
@@ -333,75 +332,63 @@ _REFERENCE = (
 )
 
 
-def _positive_float(text: str) -> float:
-    v = float(text)
-    if not math.isfinite(v) or v <= 0.0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
+def run_validation(
+    out_dir: Path,
+    densities: Sequence[float] = (0.1, 0.2, 0.3),
+    packets_per_s: float = 10.0,
+    tx_power_dbm: float = 20.0,
+    n_subchannels: int = 4,
+    n_subframes: int = 5000,
+    seeds: Sequence[int] = (1, 2),
+    sets: Sequence[str] = (),
+    packet_bytes: int = 190,
+) -> list[Path]:
+    """Compare the simulator with the analytical model at each density and write the outputs
+    (:func:`write_outputs`) into ``out_dir``; prints a short table per density. What
+    ``cv2x-marl validate`` runs (in a run folder).
 
-
-def main(argv: Sequence[str] | None = None, prog: str = "python -m cv2x_marl.validation.compare") -> int:
-    """Command line: ``python -m cv2x_marl.validation.compare --out DIR [options]`` (``cv2x-marl
-    validate`` calls it with its own ``prog``, so errors name that command)."""
-    ap = argparse.ArgumentParser(
-        prog=prog,
-        description="PDR(d) and loss causes: simulator vs the analytical model of Gonzalez-Martin et al. (2019)",
-    )
-    ap.add_argument("--out", required=True, type=Path, help="output folder (created; files are replaced)")
-    ap.add_argument("--densities", type=_positive_float, nargs="+", default=[0.1, 0.2, 0.3], help="veh/m")
-    ap.add_argument("--packets-per-s", type=_positive_float, default=10.0)
-    ap.add_argument("--tx-power-dbm", type=float, default=20.0)
-    ap.add_argument("--subchannels", type=int, default=4, choices=(2, 4))
-    ap.add_argument("--packet-bytes", type=int, default=190, choices=(190,))
-    ap.add_argument("--subframes", type=int, default=5000, help="measured subframes per seed (default 5000)")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
-    ap.add_argument(
-        "--set",
-        dest="sets",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a simulator key after the matched configuration, e.g. vehicles.placement=uniform",
-    )
-    args = ap.parse_args(argv)
-    if args.subframes < 1:
-        ap.error("--subframes must be >= 1")
+    Raises:
+        ValueError: a setting the matched configuration cannot take (named in the message).
+    """
+    if n_subframes < 1:
+        raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
     settings = {
-        "packets_per_s": args.packets_per_s,
-        "tx_power_dbm": args.tx_power_dbm,
-        "n_subchannels": args.subchannels,
-        "packet_bytes": args.packet_bytes,
-        "subframes_per_seed": args.subframes,
-        "seeds": list(args.seeds),
-        "simulator_sets": list(args.sets),
+        "packets_per_s": packets_per_s,
+        "tx_power_dbm": tx_power_dbm,
+        "n_subchannels": n_subchannels,
+        "packet_bytes": packet_bytes,
+        "subframes_per_seed": n_subframes,
+        "seeds": list(seeds),
+        "simulator_sets": list(sets),
         "sensing_threshold_dbm": SENSING_THRESHOLD_DBM,
         "bin_m": BIN_M,
         "table_window_m": "pooled over [d - 10, d + 10) for the simulator; exactly at d for the analytical model",
     }
     results = []
-    for rho in args.densities:
-        try:
-            r = compare_density(
-                rho,
-                args.packets_per_s,
-                args.tx_power_dbm,
-                args.subchannels,
-                args.packet_bytes,
-                args.subframes,
-                args.seeds,
-                args.sets,
-            )
-        except ValueError as exc:
-            ap.error(str(exc))
+    for rho in densities:
+        r = compare_density(
+            rho, packets_per_s, tx_power_dbm, n_subchannels, packet_bytes, n_subframes, list(seeds), list(sets)
+        )
         results.append(r)
         print(f"density {rho:g} veh/m: {r['n_vehicles']} vehicles, simulator {r['simulator_runtime_s']:.1f} s")
         for t in r["table"]:
-            s, a = t["simulator"], t["analytical"]
-            print(f"  {t['distance_m']:5.0f} m  PDR simulator {s['pdr']:.3f}  analytical {a['pdr']:.3f}")
+            sim, ana = t["simulator"], t["analytical"]
+            print(f"  {t['distance_m']:5.0f} m  PDR simulator {sim['pdr']:.3f}  analytical {ana['pdr']:.3f}")
         print(f"  mean |PDR difference| over 0-500 m: {r['mad_pct_0_500m']['pdr']:.2f} percentage points")
-    for p in write_outputs(args.out, settings, results):
+    paths = write_outputs(out_dir, settings, results)
+    for p in paths:
         print(p)
-    return 0
+    return paths
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m cv2x_marl.validation.compare [options]``: the same as ``cv2x-marl validate [options]``
+    (one set of options, the CLI's)."""
+    import sys
+
+    from cv2x_marl.cli import main as cli_main
+
+    return cli_main(["validate", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":
