@@ -222,6 +222,32 @@ class VehiclesConfig(Section):
         "x, y, angle, speed), interpolated linearly to traffic.rri_ms",
         allowed="path to an .xml or .parquet file, or null",
     )
+    population: str = _key(
+        "fixed",
+        "fixed: the same N vehicles for the whole run (sumo and trace: the first N in the network); open: "
+        "vehicles enter and leave the scenario (sumo and trace only): an entering vehicle listens for one "
+        "reservation period, then selects a resource by sensing; a leaving vehicle's links end. With open, "
+        "n_vehicles (or density_veh_per_m) is the mean count a generated demand aims at and vehicles.capacity "
+        "bounds how many may be present at once (docs/mobility.md)",
+        choices=("fixed", "open"),
+    )
+    capacity: int | None = _key(
+        None,
+        "vehicles.population=open: the most vehicles present at once (the simulator's array size); null: "
+        "2 x the resolved vehicle count + 16",
+        "",
+        2,
+        MAX_VEHICLES,
+    )
+    sumo_begin_s: float | None = _key(
+        None,
+        "SUMO time at which the run starts (sumo and trace; the scenario is stepped until then); null: 0 with "
+        "population=fixed, road.length_m / vehicles.speed_min_mps (a slow vehicle crossing the region once, so the "
+        "roads fill) with population=open",
+        "s",
+        0.0,
+        86400.0,
+    )
 
     def _check(self) -> None:
         if self.speed_min_mps > self.speed_max_mps:
@@ -235,6 +261,11 @@ class VehiclesConfig(Section):
             value = getattr(self, key)
             if value is not None and not value.strip():
                 raise ConfigError(f"vehicles.{key}: an empty path; give a file or null")
+        if self.population == "open" and self.mobility == "model":
+            raise ConfigError(
+                "vehicles.population=open needs vehicles.mobility=sumo or trace (the lane model keeps its vehicles: "
+                "they wrap around the region)"
+            )
 
 
 @dataclass(frozen=True)
@@ -512,6 +543,26 @@ class ScenarioConfig:
         road_m = self.road.length_m * (2 * self.road.n_roads_per_axis if self.road.kind == "grid" else 1)
         return max(2, round(density * road_m))
 
+    @property
+    def n_slots(self) -> int:
+        """Vehicle slots of the simulator's arrays: the vehicle count, or with ``vehicles.population=open``
+        the most vehicles present at once (``vehicles.capacity``, null: 2 x the count + 16)."""
+        if self.vehicles.population != "open":
+            return self.n_vehicles
+        cap = self.vehicles.capacity
+        return min(MAX_VEHICLES, 2 * self.n_vehicles + 16) if cap is None else cap
+
+    @property
+    def sumo_begin_s(self) -> float:
+        """Resolved ``vehicles.sumo_begin_s`` (null: 0 with a fixed population, else
+        ``road.length_m / vehicles.speed_min_mps``, at most one hour)."""
+        v = self.vehicles
+        if v.sumo_begin_s is not None:
+            return v.sumo_begin_s
+        if v.population != "open":
+            return 0.0
+        return min(3600.0, self.road.length_m / max(v.speed_min_mps, 1.0))
+
 
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # Table 1 of the paper; READING.md settles the gaps.
@@ -533,6 +584,15 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     "sumo-grid": {
         "vehicles": {"mobility": "sumo"},
     },
+    # The highway preset with vehicles driven by SUMO (car following, lane changes): a straight two-way
+    # road of road.length_m, vehicles entering at either end as Poisson flows sized for the preset's
+    # density and leaving at the other end (vehicles.population=open; docs/mobility.md).
+    "sumo-highway": {},  # filled below from "highway"
+}
+PRESETS["sumo-highway"] = {
+    **{k: dict(v) for k, v in PRESETS["highway"].items()},
+    "vehicles": {**PRESETS["highway"]["vehicles"], "mobility": "sumo", "population": "open"},
+    "road": {**PRESETS["highway"]["road"], "wrap_distances": False},
 }
 
 
@@ -566,7 +626,7 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset (``paper``, ``highway`` or ``sumo-grid``)."""
+    """A named preset (``paper``, ``highway``, ``sumo-grid`` or ``sumo-highway``)."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     return from_dict(PRESETS[name])

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
 from cv2x_marl.checks import is_int, is_real
-from cv2x_marl.config import ScenarioConfig, apply_overrides
+from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides
 from cv2x_marl.config import preset as load_preset
 from cv2x_marl.env.observation import OWN_V1, VERSIONS, ObservationLayout, build_observations, co_channel_table
 from cv2x_marl.sim import Simulator, kernels
@@ -186,6 +186,12 @@ class MobilityEnv(ParallelEnv):
             "integer in [0, max_cycles)",
             settle_steps,
         )
+        if cfg.vehicles.population == "open":
+            raise ConfigError(
+                "the env needs vehicles.population=fixed: its agents are the vehicles of the scenario, a fixed set "
+                "per episode (open populations, where vehicles enter and leave, are for the simulator: "
+                "cv2x-marl simulate, docs/mobility.md)"
+            )
         self.config = cfg
         self.n = cfg.n_vehicles
         if n_neighbours is None:

@@ -186,6 +186,28 @@ class Shadowing:
         odo_flat[ba] = odo
         return z
 
+    def renew(self, vehicles: NDArray[np.int64], odometer_m: FloatArray) -> None:
+        """New vehicles in the slots ``vehicles`` (``vehicles.population=open``): their pairs get fresh,
+        independent ``Z`` (the old vehicle's shadowing does not carry over), read as of now.
+
+        Args:
+            vehicles: [V] the renewed slots.
+            odometer_m: [N] the odometers now (``travelled``: the pairs' reference sums).
+        """
+        n = self._z.shape[0]
+        w = self._rng.standard_normal((vehicles.shape[0], n))
+        blk = np.triu(w[:, vehicles], 1)  # pairs of two renewed slots: one draw each, symmetric, 0 on the diagonal
+        w[:, vehicles] = blk + blk.T
+        self._z[vehicles, :] = w
+        self._z[:, vehicles] = w.T
+        if self.correlation == "travelled":
+            ref = odometer_m[vehicles][:, None] + odometer_m[None, :]
+            self._last_odo[vehicles, :] = ref
+            self._last_odo[:, vehicles] = ref.T
+        else:
+            self._last_odo[vehicles, :] = np.nan
+            self._last_odo[:, vehicles] = np.nan
+
 
 def rayleigh_power_gain(rng: np.random.Generator, size: int) -> FloatArray:
     """``|h|^2`` of Rayleigh fading: exponential with mean 1."""
@@ -286,3 +308,18 @@ class SparseShadowing:
         else:
             self._keys, self._z, self._last = keys, z.copy(), odo.copy()
         return z
+
+    def renew(self, vehicles: NDArray[np.int64], odometer_m: FloatArray) -> None:
+        """New vehicles in the slots ``vehicles`` (``vehicles.population=open``): their pairs are
+        forgotten, so each gets a fresh draw at its next read.
+
+        Args:
+            vehicles: [V] the renewed slots.
+            odometer_m: [N] the odometers now (unused: a new pair starts from its first read).
+        """
+        del odometer_m
+        a, b = self._keys // self._n, self._keys % self._n
+        mark = np.zeros(self._n, dtype=bool)
+        mark[vehicles] = True
+        keep = ~(mark[a] | mark[b])
+        self._keys, self._z, self._last = self._keys[keep], self._z[keep], self._last[keep]

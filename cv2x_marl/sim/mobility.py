@@ -49,12 +49,17 @@ class TrackedState:
         odometer_m: [N] distance covered since the source started (sum of the straight
             displacements between periods; drives the shadowing decorrelation).
         time_s: source time of the state (SUMO / trace seconds).
+        present: [N] which slots hold a vehicle (``vehicles.population=open``; None: all, always).
+            An empty slot has NaN position and velocity and a zero odometer.
+        entered: [N] slots whose vehicle is new since the previous state (None: none).
     """
 
     pos_m: FloatArray
     vel_mps: FloatArray
     odometer_m: FloatArray
     time_s: float
+    present: NDArray[np.bool_] | None = None
+    entered: NDArray[np.bool_] | None = None
 
     @property
     def n(self) -> int:

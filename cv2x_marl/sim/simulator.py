@@ -78,6 +78,9 @@ class Snapshot:
         shadowing_db: [N, N] shadowing (symmetric, dB, added as a loss).
         rri_ms: reservation interval.
         n_subchannels: subchannels per subframe.
+        present: [N] which vehicle slots hold a vehicle (``vehicles.population=open``; None: all).
+            An empty slot has NaN position and velocity and slot -1; a vehicle that entered and is
+            still listening (no resource selected yet) has slot -1 too.
     """
 
     subframe: int
@@ -91,6 +94,7 @@ class Snapshot:
     shadowing_db: FloatArray
     rri_ms: int
     n_subchannels: int
+    present: NDArray[np.bool_] | None = None
 
 
 class _PairMatrices:
@@ -229,7 +233,9 @@ class Simulator:
             self.road = Road.from_config(config.road)
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
-        self.n = config.n_vehicles
+        #: vehicle slots: the vehicle count, or the capacity with vehicles.population=open
+        self.n = config.n_slots
+        self.open_population = config.vehicles.population == "open"
         self.rri = config.traffic.rri_ms
         self.n_sub = config.sps.n_subchannels
         self.n_res = self.rri * self.n_sub
@@ -267,6 +273,11 @@ class Simulator:
 
             self._source = sumo.open_source(cfg, self.rng.mobility)
             self.state = self._source.state
+        #: [N] which slots hold a vehicle (vehicles.population=open; None: every slot, always)
+        self.present: NDArray[np.bool_] | None = None
+        if self.open_population:
+            assert isinstance(self.state, mobility.TrackedState) and self.state.present is not None
+            self.present = self.state.present.copy()
         shadowing_cls = channel.SparseShadowing if self.sparse_state else channel.Shadowing
         self.shadowing: channel.Shadowing | channel.SparseShadowing = shadowing_cls(
             self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing, cfg.channel.shadowing_correlation
@@ -282,6 +293,14 @@ class Simulator:
         self.initial_resource = np.ones(self.n, dtype=bool)  # still on the random resource of reset
         self.n_expiries_per_vehicle = np.zeros(self.n, dtype=np.int64)
         self._releasing = np.zeros(self.n, dtype=bool)
+        #: [N] vehicles that entered and listen for a period before selecting (population=open)
+        self._joining = np.zeros(self.n, dtype=bool)
+        if self.present is not None:  # empty slots: no resource (slot -1: never active), no counter
+            self.resource[~self.present] = -1
+            self.counter[~self.present] = 0
+            self.initial_resource[~self.present] = False
+        self.n_entries = 0
+        self.n_departures = 0
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
         self.subframe = 0
@@ -323,14 +342,19 @@ class Simulator:
             reselection counter has not expired yet; ``counter_mean`` and ``counter_histogram``
             (reselection counter value -> number of vehicles; TS 36.321 5.14.1.1).
         """
-        values, counts = np.unique(self.counter, return_counts=True)
-        return {
+        on = slice(None) if self.present is None else self.resource >= 0  # vehicles holding a resource
+        values, counts = np.unique(self.counter[on], return_counts=True)
+        out: dict[str, object] = {
             "subframe": int(self.subframe),
-            "share_initial_resource": float(np.mean(self.initial_resource)),
-            "share_never_expired": float(np.mean(self.n_expiries_per_vehicle == 0)),
-            "counter_mean": float(np.mean(self.counter)),
+            "share_initial_resource": float(np.mean(self.initial_resource[on])),
+            "share_never_expired": float(np.mean(self.n_expiries_per_vehicle[on] == 0)),
+            "counter_mean": float(np.mean(self.counter[on])),
             "counter_histogram": {str(int(v)): int(c) for v, c in zip(values, counts, strict=True)},
         }
+        if self.present is not None:  # population=open: the shares are over the vehicles holding a resource
+            out["n_present"] = int(self.present.sum())
+            out["n_listening"] = int((self._joining & self.present).sum())
+        return out
 
     def _new_period_buffers(self) -> None:
         self._period_rssi = np.zeros(self.n * self.n_res)
@@ -362,6 +386,7 @@ class Simulator:
             "counter": self.counter.copy(),
             "rri_ms": self.rri,
             "n_subchannels": self.n_sub,
+            "present": None if self.present is None else self.present.copy(),
         }
         build = _PairMatrices(
             self.config,
@@ -379,8 +404,9 @@ class Simulator:
         return Snapshot(los=los, shadowing_db=sh, **fields)  # type: ignore[arg-type]
 
     @property
-    def vehicle_ids(self) -> list[str] | None:
-        """SUMO (or trace) IDs of the vehicles, vehicle ``i`` first; None with ``vehicles.mobility=model``."""
+    def vehicle_ids(self) -> list[str | None] | None:
+        """SUMO (or trace) IDs of the vehicles, vehicle ``i`` first (``vehicles.population=open``: the
+        vehicle in each slot, None where empty); None with ``vehicles.mobility=model``."""
         return None if self._source is None else list(self._source.ids)
 
     def close(self) -> None:
@@ -417,8 +443,20 @@ class Simulator:
         return self.road.minimum_image(d) if self.config.road.wrap_distances else d
 
     def _pairs(self, pos: FloatArray) -> tuple[IntArray, IntArray]:
+        """Unordered pairs ``(i, j)``, ``i < j``, sorted, within ``link.max_range_m`` (all without a cut-off);
+        with ``vehicles.population=open`` only pairs of present vehicles."""
+        if self.present is not None:
+            idx = np.flatnonzero(self.present)
+            i, j = self._pairs_of(pos[idx], idx.shape[0] == self.n)
+            return idx[i], idx[j]  # idx is increasing: the order is kept
+        return self._pairs_of(pos, True)
+
+    def _pairs_of(self, pos: FloatArray, all_slots: bool) -> tuple[IntArray, IntArray]:
         rng_m = self.config.link.max_range_m
         if rng_m is None:
+            if not all_slots:
+                iu, ju = np.triu_indices(pos.shape[0], 1)
+                return iu.astype(np.int64), ju.astype(np.int64)
             assert self._all_pairs is not None
             return self._all_pairs
         if self.sparse_state:  # a compiled sweep along x: the KD-tree's pairs, sorted, ~4x faster at scale
@@ -451,7 +489,7 @@ class Simulator:
         if cfg.channel.los == "always" or self.road.kind == "highway":
             los = np.ones(i.shape[0], dtype=bool)
         else:
-            hc, vc = self.road.corridors(pos)
+            hc, vc = self.road.corridors(pos if self.present is None else np.nan_to_num(pos))  # empty slots: NaN
             los = Road.corridor_los((hc[i], vc[i]), (hc[j], vc[j]))
         vel = mobility.velocities_mps(self.state)
         rel = np.hypot(*(vel[i] - vel[j]).T)
@@ -752,20 +790,86 @@ class Simulator:
         keep = self.rng.sps.random(self.n) < self.config.sps.keep_probability
         self._releasing = last & ~keep
 
+    def _sensing_selection(self, vehicles: IntArray, last_rsrp: FloatArray, exclude_own: bool) -> IntArray:
+        """Resources chosen by sensing (TS 36.213 14.1.1.6) for ``vehicles`` [V]: the SCIs of the
+        period just ended (``last_rsrp`` [N, R], dBm) and the S-RSSI of the sensing window."""
+        cfg = self.config
+        cand = sps.candidate_resources(self.generation_slot[vehicles], cfg.sps, self.rri)
+        rsrp = last_rsrp[vehicles[:, None], cand]
+        if exclude_own:
+            rsrp = np.where(cand // self.n_sub == self.slot[vehicles][:, None], np.inf, rsrp)
+        rssi = _nan_mean_first_axis(self._rssi_ring[:, vehicles[:, None], cand])
+        rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
+        choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
+        return np.asarray(cand[np.arange(vehicles.size), choice])
+
+    def _select_joining(self, last_rsrp: FloatArray) -> None:
+        """``vehicles.population=open``: the vehicles that entered at the end of the previous period and
+        listened through this one select a resource by sensing (their sensing window is this period:
+        the SCIs that exclude resources are this period's, as for every other vehicle) and draw a
+        reselection counter; they transmit from the next period on."""
+        assert self.present is not None
+        join = np.flatnonzero(self._joining & self.present)
+        if not join.size:
+            return
+        cfg = self.config
+        self.resource[join] = self._sensing_selection(join, last_rsrp, exclude_own=False)  # it sent nothing
+        self.counter[join] = sps.draw_counters(cfg.sps, self.rri, join.size, self.rng.sps)
+        self._joining[join] = False
+        self.n_reselections += int(join.size)
+
+    def _admit(self) -> None:
+        """``vehicles.population=open``: after a mobility step, free the slots of the vehicles that left
+        (their links end: no transmission, no reception) and set up those that entered: no SPS history
+        (an empty sensing window, no resource: they listen for one period, :meth:`_select_joining`),
+        fresh shadowing towards everyone, a new generation slot, no offset."""
+        st = self.state
+        assert isinstance(st, mobility.TrackedState) and st.present is not None and st.entered is not None
+        assert self.present is not None
+        left = self.present & ~st.present
+        gone = ~st.present
+        self.n_departures += int(left.sum())
+        self.resource[gone] = -1
+        self.counter[gone] = 0
+        self._joining[gone] = False
+        self._releasing[gone] = False
+        self.initial_resource[gone] = False
+        e = np.flatnonzero(st.entered)
+        if e.size:
+            self.n_entries += int(e.size)
+            self.resource[e] = -1
+            self.counter[e] = 0
+            self._joining[e] = True
+            self._releasing[e] = False
+            self.initial_resource[e] = False
+            self.n_expiries_per_vehicle[e] = 0
+            self._rssi_ring[:, e, :] = np.nan
+            self.shadowing.renew(e, st.odometer_m)
+            if not self.config.traffic.synchronous:
+                self.generation_slot[e] = self.rng.traffic.integers(0, self.rri, size=e.size)
+            self.offsets_m[e] = 0.0
+        self.present = st.present.copy()
+
     def _end_period(self) -> None:
         """Commit sensing, run the SPS counters and reselections, then move the vehicles."""
         cfg = self.config
         k = (self.subframe // self.rri - 1) % self._sensing_periods
         ring = self._period_rssi.reshape(self.n, self.n_res).astype(np.float32)
         ring += np.float32(self.noise_mw)
-        own = np.arange(self.n) * self.n_res
-        own_res = (self.slot * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
+        veh = np.arange(self.n) if self.present is None else np.flatnonzero(self.resource >= 0)  # transmitters
+        own = veh * self.n_res
+        own_res = (self.slot[veh] * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
         ring.reshape(-1)[(own[:, None] + own_res).reshape(-1)] = np.nan  # not monitored (half duplex)
         self._rssi_ring[k] = ring
         last_rsrp = self._period_rsrp.reshape(self.n, self.n_res)
 
-        self.counter -= 1
-        expired = self.counter <= 0
+        if self.present is None:
+            self.counter -= 1
+            expired = self.counter <= 0
+        else:  # only vehicles holding a resource count down
+            holding = self.resource >= 0
+            self.counter -= holding
+            expired = (self.counter <= 0) & holding
         if cfg.sps.reservation_signalling == "standard":
             keep = ~self._releasing  # decided when the counter reached 1 (_decide_releases)
         else:
@@ -777,21 +881,18 @@ class Simulator:
         if np.any(expired):
             self.counter[expired] = sps.draw_counters(cfg.sps, self.rri, int(expired.sum()), self.rng.sps)
         if reselect.size:
-            cand = sps.candidate_resources(self.generation_slot[reselect], cfg.sps, self.rri)
-            rsrp = last_rsrp[reselect[:, None], cand]
-            if cfg.sps.exclude_unmonitored:
-                rsrp = np.where(cand // self.n_sub == self.slot[reselect][:, None], np.inf, rsrp)
-            rssi = _nan_mean_first_axis(self._rssi_ring[:, reselect[:, None], cand])
-            rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
-            choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
-            self.resource[reselect] = cand[np.arange(reselect.size), choice]
+            self.resource[reselect] = self._sensing_selection(reselect, last_rsrp, cfg.sps.exclude_unmonitored)
             self.initial_resource[reselect] = False
             self.n_reselections += int(reselect.size)
+        if self.present is not None:
+            self._select_joining(last_rsrp)
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
         self._new_period_buffers()
         if self._source is not None:
             self.state = self._source.advance()
+            if self.present is not None:
+                self._admit()
         else:
             assert isinstance(self.state, mobility.VehicleState)
             self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)

@@ -214,20 +214,36 @@ class Scenario:
     generated: bool
 
 
+def check_generated(cfg: ScenarioConfig) -> None:
+    """Refuse (ConfigError, naming the keys) a ``road`` / ``vehicles`` combination with no generated
+    scenario: the grid's random walk keeps a fixed population; the highway's flows need an open one."""
+    road, veh = cfg.road, cfg.vehicles
+    if veh.speed_max_mps <= 0:
+        raise ConfigError("vehicles.mobility=sumo needs vehicles.speed_max_mps > 0 (the network's speed limit)")
+    if road.kind == "highway" and veh.population != "open":
+        raise ConfigError(
+            "a generated SUMO highway (road.kind=highway, vehicles.sumo_config null) has vehicles entering at one "
+            "end and leaving at the other: set vehicles.population=open (the sumo-highway preset does)"
+        )
+    if road.kind == "grid" and veh.population == "open":
+        raise ConfigError(
+            "the generated SUMO grid keeps its vehicles on random walks (vehicles.population=fixed); for an open "
+            "population give a scenario in vehicles.sumo_config (e.g. demand from SUMO's randomTrips.py)"
+        )
+    if road.kind == "highway" and veh.speed_min_mps <= 0:
+        raise ConfigError("a generated SUMO highway needs vehicles.speed_min_mps > 0 (the slowest desired speed)")
+
+
 def netgenerate_args(cfg: ScenarioConfig) -> list[str]:
-    """``netgenerate`` arguments for the ``road`` section (grid only in this version).
+    """``netgenerate`` arguments for the ``road`` section (the grid).
 
     Raises:
-        ConfigError: a road kind without a generated SUMO network.
+        ConfigError: a road kind without a generated SUMO grid network.
     """
     road, veh = cfg.road, cfg.vehicles
     if road.kind != "grid":
-        raise ConfigError(
-            f"vehicles.mobility=sumo without vehicles.sumo_config generates the road network, which is done for "
-            f"road.kind=grid only (got {road.kind!r}); give a scenario in vehicles.sumo_config"
-        )
-    if veh.speed_max_mps <= 0:
-        raise ConfigError("vehicles.mobility=sumo needs vehicles.speed_max_mps > 0 (the network's speed limit)")
+        raise ConfigError(f"netgenerate builds the grid network only (road.kind=grid, got {road.kind!r})")
+    check_generated(cfg)
     spacing = road.length_m / road.n_roads_per_axis
     return [
         "--grid",
@@ -244,8 +260,57 @@ def netgenerate_args(cfg: ScenarioConfig) -> list[str]:
     ]
 
 
+def highway_plain_xml(cfg: ScenarioConfig) -> tuple[str, str]:
+    """Plain ``(nodes, edges)`` XML of the highway (``netconvert`` input): one straight two-way road
+    along x from 0 to ``road.length_m`` with its centre line at ``y = lanes_per_direction *
+    lane_width_m`` (as :class:`cv2x_marl.sim.road.Road`); each direction's lanes lie to its right
+    (``spreadType="right"``): eastbound in ``[0, c]``, westbound in ``[c, 2c]``."""
+    road, veh = cfg.road, cfg.vehicles
+    c = road.lanes_per_direction * road.lane_width_m
+    nodes = (
+        "<nodes>\n"
+        f'    <node id="west" x="0" y="{c!r}" type="dead_end"/>\n'
+        f'    <node id="east" x="{road.length_m!r}" y="{c!r}" type="dead_end"/>\n'
+        "</nodes>\n"
+    )
+    common = (
+        f'numLanes="{road.lanes_per_direction}" width="{road.lane_width_m!r}" speed="{veh.speed_max_mps!r}" '
+        'spreadType="right"'
+    )
+    edges = (
+        "<edges>\n"
+        f'    <edge id="eastbound" from="west" to="east" {common}/>\n'
+        f'    <edge id="westbound" from="east" to="west" {common}/>\n'
+        "</edges>\n"
+    )
+    return nodes, edges
+
+
 def build_network(cfg: ScenarioConfig) -> Path:
-    """The cached ``net.net.xml`` for the ``road`` section (``netgenerate`` runs on a cache miss)."""
+    """The cached ``net.net.xml`` for the ``road`` section (``netgenerate`` for the grid, ``netconvert``
+    of :func:`highway_plain_xml` for the highway; run on a cache miss only)."""
+    if cfg.road.kind == "highway":
+        check_generated(cfg)
+        nodes, edges = highway_plain_xml(cfg)
+        hkey = {"what": "net", "generator": _GENERATOR_VERSION, "sumo": sumo_version(), "nodes": nodes, "edges": edges}
+
+        def build_highway(folder: Path) -> None:
+            (folder / "net.nod.xml").write_text(nodes)
+            (folder / "net.edg.xml").write_text(edges)
+            run_tool(
+                "netconvert",
+                [
+                    "--node-files=net.nod.xml",
+                    "--edge-files=net.edg.xml",
+                    f"--output-file={NET_FILE}",
+                    "--offset.disable-normalization=true",
+                    "--no-turnarounds=true",
+                    "--no-warnings=true",
+                ],
+                cwd=folder,
+            )
+
+        return cached("net", hkey, build_highway) / NET_FILE
     args = netgenerate_args(cfg)
     key = {"what": "net", "generator": _GENERATOR_VERSION, "sumo": sumo_version(), "netgenerate": args}
 
@@ -389,6 +454,45 @@ def sumocfg_xml(net_file: str, route_file: str, step_s: float, seed: int) -> str
     )
 
 
+#: desired-speed classes of the highway flows (a uniform speed law on [speed_min, speed_max] in equal bins)
+HIGHWAY_SPEED_CLASSES = 8
+
+
+def highway_flows_xml(cfg: ScenarioConfig, horizon_s: float = ROUTE_HORIZON_S) -> tuple[str, float]:
+    """The highway demand: Poisson flows entering at either end, leaving at the other.
+
+    Desired speeds are uniform on ``[speed_min_mps, speed_max_mps]``, discretised into
+    :data:`HIGHWAY_SPEED_CLASSES` equal bins (one vType per bin, its midpoint as ``speedFactor`` of
+    the speed limit ``speed_max_mps``). A vehicle at desired speed ``v`` stays ``L / v`` on the road,
+    so the flow per direction that gives the resolved vehicle count ``N`` (half per direction) in
+    free flow is ``q = (N / 2) / (L * mean(1 / v_k))`` vehicles per second, split equally over the
+    classes; SUMO draws the Poisson departures (``period="exp(rate)"``) with its seed. Car following
+    slows some vehicles, so the count in the network is at least this (docs/mobility.md reports it).
+
+    Returns:
+        ``(routes XML, q)``: the ``.rou.xml`` text and the flow per direction in vehicles per second.
+    """
+    veh, road = cfg.vehicles, cfg.road
+    k = HIGHWAY_SPEED_CLASSES
+    edges = np.linspace(veh.speed_min_mps, veh.speed_max_mps, k + 1)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    q = 0.5 * cfg.n_vehicles / (road.length_m * float(np.mean(1.0 / mid)))
+    lines = ["<routes>"]
+    for c, v in enumerate(mid):
+        factor = v / veh.speed_max_mps
+        lines.append(f'    <vType id="v{c}" vClass="passenger" speedFactor="{factor:.6f}" speedDev="0"/>')
+    lines.append('    <route id="east" edges="eastbound"/>')
+    lines.append('    <route id="west" edges="westbound"/>')
+    for way in ("east", "west"):
+        for c in range(k):
+            lines.append(
+                f'    <flow id="{way}{c}" type="v{c}" route="{way}" begin="0" end="{horizon_s!r}" '
+                f'period="exp({q / k:.9f})" departLane="free" departSpeed="desired" departPos="base"/>'
+            )
+    lines.append("</routes>")
+    return "\n".join(lines) + "\n", q
+
+
 def draw_sumo_seed(rng: np.random.Generator) -> int:
     """SUMO's ``--seed``: the first draw of the mobility stream."""
     return int(rng.integers(0, 2**31 - 1))
@@ -408,9 +512,12 @@ def build_scenario(cfg: ScenarioConfig, rng: np.random.Generator) -> Scenario:
         path = check_sumocfg(user)
         return Scenario(path, seed, step_s, generated=False)
     net_path = build_network(cfg)
-    net = read_net(net_path)
-    routes, _, factor = random_walk_routes(net, cfg, cfg.n_vehicles, rng)
-    rou = routes_xml(net, routes, factor)
+    if cfg.road.kind == "highway":
+        rou, _ = highway_flows_xml(cfg, cfg.sumo_begin_s + ROUTE_HORIZON_S)
+    else:
+        net = read_net(net_path)
+        routes, _, factor = random_walk_routes(net, cfg, cfg.n_vehicles, rng)
+        rou = routes_xml(net, routes, factor)
     # the network stays in its own cache folder (shared by every seed); export copies it
     sumocfg = sumocfg_xml(f"../{net_path.parent.name}/{NET_FILE}", ROUTE_FILE, step_s, seed)
     key = {
@@ -479,6 +586,71 @@ def _select(ids_present: Sequence[str], first_seen: dict[str, float], n: int) ->
     return sorted(ids_present, key=lambda v: (first_seen[v], v))[:n]
 
 
+def assign_slots(slots: list[str | None], now: Sequence[str], what: str) -> NDArray[np.bool_]:
+    """``vehicles.population=open``: update the slot table ``slots`` (in place) to the vehicles ``now``
+    present: the slots of vehicles gone are freed, then the new vehicles take the lowest free slots in
+    the order given (the same rule for the lockstep and a trace, so a replay gives the lockstep run).
+
+    Args:
+        slots: [capacity] the vehicle ID in each slot, None where empty.
+        now: the IDs present now, new ones in the order they take slots.
+        what: the source, for the error message.
+
+    Returns:
+        [capacity] the slots whose vehicle is new.
+
+    Raises:
+        SumoError: more vehicles present than slots (naming ``vehicles.capacity``).
+    """
+    here = set(now)
+    for k, v in enumerate(slots):
+        if v is not None and v not in here:
+            slots[k] = None
+    held = {v for v in slots if v is not None}
+    new = [v for v in now if v not in held]
+    entered = np.zeros(len(slots), dtype=bool)
+    if not new:
+        return entered
+    free = [k for k, v in enumerate(slots) if v is None]
+    if len(new) > len(free):
+        raise SumoError(
+            f"{what} has {len(held) + len(new)} vehicles in the network at once, more than vehicles.capacity = "
+            f"{len(slots)} slots; raise vehicles.capacity"
+        )
+    for k, v in zip(free, new, strict=False):
+        slots[k] = v
+        entered[k] = True
+    return entered
+
+
+def _open_state(
+    slots: list[str | None],
+    entered: NDArray[np.bool_],
+    values: dict[str, tuple[float, float, float, float]],
+    time_s: float,
+    prev: TrackedState | None,
+) -> TrackedState:
+    """The :class:`TrackedState` of an open population from ``values`` (ID -> x, y, vx, vy) of the
+    vehicles in ``slots``; the odometer goes on for a vehicle that stays and starts at 0 for a new one."""
+    n = len(slots)
+    rows = np.full((n, 4), np.nan)
+    present = np.array([v is not None for v in slots], dtype=bool)
+    for k in np.flatnonzero(present).tolist():
+        rows[k] = values[slots[k]]  # type: ignore[index]
+    pos, vel = rows[:, :2].copy(), rows[:, 2:].copy()
+    odo = np.zeros(n)
+    if prev is not None:
+        stay = present & ~entered
+        step = np.hypot(*(pos[stay] - prev.pos_m[stay]).T)
+        odo[stay] = prev.odometer_m[stay] + step
+    return TrackedState(pos, vel, odo, time_s, present, entered)
+
+
+def _first_seen_order(ids: Sequence[str], first_seen: dict[str, float]) -> list[str]:
+    """``ids`` by (first time seen, ID): the order in which the vehicles present at time zero take slots."""
+    return sorted(ids, key=lambda v: (first_seen.get(v, np.inf), v))
+
+
 # ---------------------------------------------------------------------------------------- lockstep
 _ACTIVE: SumoLockstep | None = None
 
@@ -491,14 +663,27 @@ class SumoLockstep:
 
     Args:
         scenario: the scenario to run.
-        n: vehicles to track.
+        n: vehicles to track (``open_population``: the slots, the most vehicles present at once).
         extra_args: further SUMO options (e.g. ``["--fcd-output", "fcd.xml"]``).
+        begin_s: SUMO time at which the run may start (``vehicles.sumo_begin_s``).
+        open_population: track every vehicle in the network as it enters and leaves
+            (``vehicles.population=open``) instead of the first ``n``.
     """
 
-    def __init__(self, scenario: Scenario, n: int, extra_args: Sequence[str] = ()) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        n: int,
+        extra_args: Sequence[str] = (),
+        begin_s: float = 0.0,
+        open_population: bool = False,
+    ) -> None:
         global _ACTIVE
         self.scenario = scenario
         self.n = n
+        self.begin_s = begin_s
+        self.open_population = open_population
+        self.slots: list[str | None] = [None] * n
         self.closed = False
         self._ls = import_libsumo()
         if _ACTIVE is not None:
@@ -526,11 +711,57 @@ class SumoLockstep:
                 f"{key}SUMO cannot load {scenario.sumocfg}: {str(exc).strip()} (SUMO's own messages are on stderr)"
             ) from exc
         _ACTIVE = self
-        self.ids = self._fill()
-        for vid in self.ids:
-            self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
-        self.state = self._read()
+        if open_population:
+            first_seen = self._step_to_begin()
+            present = _first_seen_order(self._ls.vehicle.getIDList(), first_seen)
+            self.state = self._read_open(present, None)
+        else:
+            self.fixed_ids = self._fill()
+            self.slots = list(self.fixed_ids)
+            for vid in self.fixed_ids:
+                self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
+            self.state = self._read()
         self.t0_s = self.time_s
+
+    @property
+    def ids(self) -> list[str | None]:
+        """The vehicle in each slot (vehicle ``i`` of the simulator), None where a slot is empty."""
+        return list(self.slots)
+
+    def _step_to_begin(self) -> dict[str, float]:
+        """Open population: step until ``begin_s`` has passed and a vehicle is in the network; the
+        time each vehicle was first seen."""
+        first_seen: dict[str, float] = {}
+        sim = self._ls.simulation
+        while True:
+            self._ls.simulationStep()
+            t = self.time_s
+            for vid in sim.getDepartedIDList():
+                first_seen.setdefault(vid, t)
+            if t >= self.begin_s - 1e-9 and self._ls.vehicle.getIDCount() > 0:
+                return first_seen
+            if sim.getMinExpectedNumber() == 0 or t >= self.begin_s + MAX_FILL_S:
+                self.close()
+                raise SumoError(
+                    f"the SUMO scenario {self.scenario.sumocfg} has no vehicle in the network at or after "
+                    f"vehicles.sumo_begin_s = {self.begin_s:g} s (looked until t = {t:g} s)"
+                )
+
+    def _read_open(self, now: Sequence[str], prev: TrackedState | None) -> TrackedState:
+        """Open population: slots updated to the vehicles ``now`` present (new ones in slot order),
+        new ones subscribed, every present vehicle read back."""
+        entered = assign_slots(self.slots, now, f"the SUMO scenario {self.scenario.sumocfg}")
+        veh = self._ls.vehicle
+        for k in np.flatnonzero(entered).tolist():
+            veh.subscribe(self.slots[k], [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
+        res = veh.getAllSubscriptionResults()
+        values: dict[str, tuple[float, float, float, float]] = {}
+        for vid in self.slots:
+            if vid is not None:
+                r = res[vid]
+                (x, y), sp, a = r[_VAR_POSITION], r[_VAR_SPEED], np.deg2rad(r[_VAR_ANGLE])
+                values[vid] = (x, y, sp * np.sin(a), sp * np.cos(a))
+        return _open_state(self.slots, entered, values, self.time_s, prev)
 
     @property
     def time_s(self) -> float:
@@ -547,9 +778,9 @@ class SumoLockstep:
             for vid in sim.getDepartedIDList():
                 first_seen.setdefault(vid, t)
             present = self._ls.vehicle.getIDList()
-            if len(present) >= self.n:
+            if len(present) >= self.n and t >= self.begin_s - 1e-9:
                 return _select(present, first_seen, self.n)
-            if sim.getMinExpectedNumber() == 0 or t >= MAX_FILL_S:
+            if sim.getMinExpectedNumber() == 0 or t >= self.begin_s + MAX_FILL_S:
                 most = len(present)
                 self.close()
                 raise SumoError(
@@ -559,16 +790,17 @@ class SumoLockstep:
 
     def _read(self) -> TrackedState:
         res = self._ls.vehicle.getAllSubscriptionResults()
-        missing = [v for v in self.ids if v not in res]
+        missing = [v for v in self.fixed_ids if v not in res]
         if missing:
             t = self.time_s
             self.close()
             raise SumoError(
                 f"vehicle {missing[0]!r} of {self.scenario.sumocfg} left the network at t = {t:g} s "
-                f"({len(missing)} of the {self.n} tracked vehicles gone); this version keeps N fixed, so every "
-                "tracked vehicle must stay until the run ends (longer routes, or fewer subframes)"
+                f"({len(missing)} of the {self.n} tracked vehicles gone); with vehicles.population=fixed every "
+                "tracked vehicle must stay until the run ends (longer routes, fewer subframes, or "
+                "vehicles.population=open)"
             )
-        rows = [res[v] for v in self.ids]
+        rows = [res[v] for v in self.fixed_ids]
         pos = np.array([r[_VAR_POSITION] for r in rows], dtype=np.float64)
         speed = np.array([r[_VAR_SPEED] for r in rows], dtype=np.float64)
         angle = np.array([r[_VAR_ANGLE] for r in rows], dtype=np.float64)
@@ -582,7 +814,13 @@ class SumoLockstep:
                 "vehicles.mobility=sumo took it over, or close() was called); reset() the simulator"
             )
         self._ls.simulationStep()
-        self.state = _moved(self.state, self._read())
+        if self.open_population:
+            ids = self._ls.vehicle.getIDList()
+            held = set(self.slots)
+            now = [v for v in ids if v in held] + sorted(v for v in ids if v not in held)  # new ones in ID order
+            self.state = self._read_open(now, self.state)
+        else:
+            self.state = _moved(self.state, self._read())
         return self.state
 
     def command(self, target_speed_mps: FloatArray, lane_change: NDArray[np.int64], duration_s: float) -> None:
@@ -604,8 +842,10 @@ class SumoLockstep:
         lanes = np.asarray(lane_change, dtype=np.int64)
         if target.shape != (self.n,) or lanes.shape != (self.n,):
             raise ValueError(f"target_speed_mps and lane_change must have shape ({self.n},)")
+        if self.open_population:
+            raise ValueError("commands need vehicles.population=fixed (the env's agents are a fixed set of vehicles)")
         veh = self._ls.vehicle
-        for vid, v, dl in zip(self.ids, target.tolist(), lanes.tolist(), strict=True):  # libsumo: per vehicle
+        for vid, v, dl in zip(self.fixed_ids, target.tolist(), lanes.tolist(), strict=True):  # libsumo: per vehicle
             if v == v:  # not NaN
                 veh.setSpeed(vid, -1.0 if v < 0 else v)  # -1: SUMO's own driver again
             if dl != 0:
@@ -750,19 +990,32 @@ class TraceReplay:
     The tracked vehicles and time zero follow the rule of the lockstep (module docstring).
     Positions and velocity vectors are interpolated between the two samples around each time.
 
+    With ``open_population`` every vehicle of the trace is tracked while it is in it: a vehicle is
+    present at a time when the trace has it at both samples around that time (at the sample, on
+    one), and takes a slot as in the lockstep (:func:`assign_slots`).
+
     Args:
         path: the trace file (``vehicles.trace_file``).
-        n: vehicles to track.
+        n: vehicles to track (``open_population``: the slots).
         step_s: the period (``traffic.rri_ms`` in seconds).
+        begin_s: trace time at which the run may start (``vehicles.sumo_begin_s``).
+        open_population: ``vehicles.population=open``.
     """
 
-    def __init__(self, path: str | Path, n: int, step_s: float) -> None:
+    def __init__(
+        self, path: str | Path, n: int, step_s: float, begin_s: float = 0.0, open_population: bool = False
+    ) -> None:
         self.path = Path(path)
         self.trace = tr = read_trace(path)
         self.n = n
         self.step_s = step_s
+        self.open_population = open_population
+        self.k = 0
+        if open_population:
+            self._init_open(begin_s)
+            return
         counts = np.bincount(tr.ti, minlength=tr.time_s.size)
-        full = np.flatnonzero(counts >= n)
+        full = np.flatnonzero((counts >= n) & (tr.time_s >= begin_s - 1e-9))
         if full.size == 0:
             raise ConfigError(
                 f"vehicles.trace_file: {self.path} never has {n} vehicles at once (at most {int(counts.max())}); "
@@ -772,14 +1025,79 @@ class TraceReplay:
         first = np.full(len(tr.ids), tr.time_s.size, dtype=np.int64)
         np.minimum.at(first, tr.vi, tr.ti)
         first_seen = {tr.ids[j]: float(tr.time_s[first[j]]) for j in np.unique(tr.vi[tr.ti == k0])}
-        self.ids = _select(list(first_seen), first_seen, n)
+        self.fixed_ids = _select(list(first_seen), first_seen, n)
+        self.slots: list[str | None] = list(self.fixed_ids)
         col = {v: j for j, v in enumerate(tr.ids)}
-        self._x, self._y, s, ang = tr.dense([col[v] for v in self.ids])  # only the tracked vehicles
+        self._x, self._y, s, ang = tr.dense([col[v] for v in self.fixed_ids])  # only the tracked vehicles
         a = np.deg2rad(ang)
         self._vx, self._vy = s * np.sin(a), s * np.cos(a)
         self.t0_s = float(tr.time_s[k0])
-        self.k = 0
         self.state = self._at(self.t0_s)
+
+    def _init_open(self, begin_s: float) -> None:
+        tr = self.trace
+        order = np.lexsort((tr.vi, tr.ti))  # records by time, then vehicle
+        self._rec = {
+            "vi": tr.vi[order],
+            "x": tr.x_m[order],
+            "y": tr.y_m[order],
+            "vx": tr.speed_mps[order] * np.sin(np.deg2rad(tr.angle_deg[order])),
+            "vy": tr.speed_mps[order] * np.cos(np.deg2rad(tr.angle_deg[order])),
+        }
+        self._starts = np.searchsorted(tr.ti[order], np.arange(tr.time_s.size + 1))
+        after = np.flatnonzero(tr.time_s >= begin_s - 1e-9)
+        if after.size == 0:
+            raise ConfigError(
+                f"vehicles.trace_file: {self.path} ends at t = {tr.time_s[-1]:g} s, before vehicles.sumo_begin_s = "
+                f"{begin_s:g} s"
+            )
+        self.t0_s = float(tr.time_s[after[0]])
+        first = np.full(len(tr.ids), np.inf)
+        np.minimum.at(first, tr.vi, tr.time_s[tr.ti])
+        ids, _ = self._open_values(self.t0_s)
+        col = {v: j for j, v in enumerate(tr.ids)}
+        first_seen = {v: float(first[col[v]]) for v in ids}
+        self.slots = [None] * self.n
+        self.state = self._open_at(self.t0_s, _first_seen_order(ids, first_seen), None)
+
+    @property
+    def ids(self) -> list[str | None]:
+        """The vehicle in each slot (vehicle ``i`` of the simulator); None where a slot is empty."""
+        return list(self.slots)
+
+    def _open_values(self, t: float) -> tuple[list[str], dict[str, tuple[float, float, float, float]]]:
+        """The vehicles in the trace at ``t`` and their interpolated (x, y, vx, vy)."""
+        times = self.trace.time_s
+        if t > times[-1] + 1e-9:
+            raise SumoError(
+                f"vehicles.trace_file: {self.path} ends at t = {times[-1]:g} s; the run needs t = {t:g} s "
+                f"({t - self.t0_s:g} s from its start at {self.t0_s:g} s); record a longer trace or run fewer subframes"
+            )
+        hi = int(np.searchsorted(times, t - 1e-9))
+        r, st = self._rec, self._starts
+        cols = ("x", "y", "vx", "vy")
+        if abs(times[hi] - t) <= 1e-9:
+            sl = slice(st[hi], st[hi + 1])
+            vi = r["vi"][sl]
+            vals = np.stack([r[c][sl] for c in cols], axis=1)
+        else:
+            lo = hi - 1
+            w = float((t - times[lo]) / (times[hi] - times[lo]))
+            a, b = slice(st[lo], st[lo + 1]), slice(st[hi], st[hi + 1])
+            vi, ia, ib = np.intersect1d(r["vi"][a], r["vi"][b], assume_unique=True, return_indices=True)
+            va = np.stack([r[c][a][ia] for c in cols], axis=1)
+            vb = np.stack([r[c][b][ib] for c in cols], axis=1)
+            vals = np.asarray((1.0 - w) * va + w * vb, dtype=np.float64)
+        names = [self.trace.ids[j] for j in vi.tolist()]
+        return names, {v: (row[0], row[1], row[2], row[3]) for v, row in zip(names, vals.tolist(), strict=True)}
+
+    def _open_at(self, t: float, order: Sequence[str] | None, prev: TrackedState | None) -> TrackedState:
+        ids, values = self._open_values(t)
+        if order is None:
+            held = set(self.slots)
+            order = [v for v in ids if v in held] + sorted(v for v in ids if v not in held)
+        entered = assign_slots(self.slots, order, f"vehicles.trace_file {self.path}")
+        return _open_state(self.slots, entered, values, t, prev)
 
     @property
     def time_s(self) -> float:
@@ -803,7 +1121,7 @@ class TraceReplay:
         if np.any(gone):
             j = int(np.flatnonzero(gone)[0])
             raise SumoError(
-                f"vehicles.trace_file: vehicle {self.ids[j]!r} of {self.path} is not in the trace at t = {t:g} s "
+                f"vehicles.trace_file: vehicle {self.fixed_ids[j]!r} of {self.path} is not in the trace at t = {t:g} s "
                 f"({int(gone.sum())} of the {self.n} tracked vehicles gone); this version keeps N fixed"
             )
         return TrackedState(np.stack([x, y], axis=1), np.stack([vx, vy], axis=1), np.zeros(self.n), t)
@@ -811,7 +1129,10 @@ class TraceReplay:
     def advance(self) -> TrackedState:
         """The state one period later."""
         self.k += 1
-        self.state = _moved(self.state, self._at(self.time_s))
+        if self.open_population:
+            self.state = self._open_at(self.time_s, None, self.state)
+        else:
+            self.state = _moved(self.state, self._at(self.time_s))
         return self.state
 
     def close(self) -> None:
@@ -839,7 +1160,7 @@ def check_source(cfg: ScenarioConfig) -> None:
         if cfg.vehicles.sumo_config is not None:
             check_sumocfg(cfg.vehicles.sumo_config)
         else:
-            netgenerate_args(cfg)
+            check_generated(cfg)
     elif mob == "trace":
         assert cfg.vehicles.trace_file is not None  # the config checks it
         p = Path(cfg.vehicles.trace_file).expanduser()
@@ -855,10 +1176,11 @@ def open_source(cfg: ScenarioConfig, rng: np.random.Generator) -> MobilitySource
         rng: the simulator's ``mobility`` stream (SUMO: seed and generated demand).
     """
     step_s = cfg.traffic.rri_ms / 1000.0
+    is_open = cfg.vehicles.population == "open"
     if cfg.vehicles.mobility == "trace":
         assert cfg.vehicles.trace_file is not None
-        return TraceReplay(cfg.vehicles.trace_file, cfg.n_vehicles, step_s)
-    return SumoLockstep(build_scenario(cfg, rng), cfg.n_vehicles)
+        return TraceReplay(cfg.vehicles.trace_file, cfg.n_slots, step_s, cfg.sumo_begin_s, is_open)
+    return SumoLockstep(build_scenario(cfg, rng), cfg.n_slots, begin_s=cfg.sumo_begin_s, open_population=is_open)
 
 
 # ------------------------------------------------------------------------------------------ export
@@ -908,7 +1230,7 @@ def export_scenario(
             f"({cfg.vehicles.sumo_config!r}): run that scenario with SUMO directly"
         )
     if seconds is None:
-        seconds = (cfg.sim.warmup_subframes + cfg.sim.n_subframes) / 1000.0 + 60.0
+        seconds = cfg.sumo_begin_s + (cfg.sim.warmup_subframes + cfg.sim.n_subframes) / 1000.0 + 60.0
     scenario = build_scenario(cfg, RngStreams.from_seed(seed).mobility)
     atomic_write(out_dir / NET_FILE, partial(shutil.copyfile, build_network(cfg)))
     atomic_write(out_dir / ROUTE_FILE, partial(shutil.copyfile, scenario.sumocfg.parent / ROUTE_FILE))

@@ -221,8 +221,12 @@ def test_compiled_period_equals_the_numpy_period(monkeypatch: pytest.MonkeyPatch
         runs.append((sim, res.metrics))
     (a, ma), (b, mb) = runs
     assert a.last_links is not None and b.last_links is not None
-    for x, y in zip(a.last_links, b.last_links, strict=True):
+    (tx_a, rx_a, p_a, cause_a), (tx_b, rx_b, p_b, cause_b) = a.last_links, b.last_links
+    for x, y in ((tx_a, tx_b), (rx_a, rx_b), (cause_a, cause_b)):
         np.testing.assert_array_equal(x, y)
+    # equal bit for bit with linear PER interpolation; with log, the compiled exp/log and numpy's may
+    # differ in the last bit on some CPUs (seen on AMD EPYC: 311 of 179,844 values, 1.1e-16 apart)
+    np.testing.assert_allclose(p_a, p_b, rtol=1e-12, atol=1e-15)
     for key in ("bin_n", "bin_decoded", "bin_causes", "node_n", "node_decoded"):
         np.testing.assert_array_equal(getattr(ma, key), getattr(mb, key), err_msg=key)
     for key in ("bin_expected", "node_expected"):

@@ -205,8 +205,12 @@ def test_config_errors_name_the_key(tmp_path: Path) -> None:
     bad.write_text("<fcd-export><timestep time='0'><vehicle id='a' x='1'")
     with pytest.raises(ConfigError, match=r"vehicles\.trace_file: .*bad\.xml is not a readable SUMO FCD XML trace"):
         Simulator(_cfg("vehicles.mobility=trace", f"vehicles.trace_file={bad}")).reset(0)
-    with pytest.raises(ConfigError, match=r"road\.kind=grid only"):
+    with pytest.raises(ConfigError, match=r"road\.kind=highway.*set vehicles\.population=open"):
         Simulator(apply_overrides(preset("highway"), ["vehicles.mobility=sumo"]))
+    with pytest.raises(ConfigError, match=r"vehicles\.population=open needs vehicles\.mobility=sumo or trace"):
+        apply_overrides(preset("paper"), ["vehicles.population=open"])
+    with pytest.raises(ConfigError, match=r"generated SUMO grid .* \(vehicles\.population=fixed\)"):
+        Simulator(_cfg("vehicles.population=open"))
 
 
 def test_vehicle_count_outside_the_scenario(tmp_path: Path) -> None:
