@@ -588,6 +588,12 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # road of road.length_m, vehicles entering at either end as Poisson flows sized for the preset's
     # density and leaving at the other end (vehicles.population=open; docs/mobility.md).
     "sumo-highway": {},  # filled below from "highway"
+    # The paper's grid with SUMO's own demand: randomTrips.py origin-destination trips sized for the
+    # paper's 21 vehicles on average, entering and leaving at the fringe (vehicles.population=open;
+    # docs/mobility.md). The env needs a fixed population: use sumo-grid there.
+    "sumo-grid-trips": {
+        "vehicles": {"mobility": "sumo", "population": "open"},
+    },
 }
 PRESETS["sumo-highway"] = {
     **{k: dict(v) for k, v in PRESETS["highway"].items()},
@@ -626,7 +632,7 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset (``paper``, ``highway``, ``sumo-grid`` or ``sumo-highway``)."""
+    """A named preset (``paper``, ``highway``, ``sumo-grid``, ``sumo-highway`` or ``sumo-grid-trips``)."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     return from_dict(PRESETS[name])

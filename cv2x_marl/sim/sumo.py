@@ -69,7 +69,7 @@ MAX_FILL_S = 3600.0
 #: file names of a generated (or exported) scenario
 NET_FILE, ROUTE_FILE, CFG_FILE = "net.net.xml", "routes.rou.xml", "scenario.sumocfg"
 #: format version of the generated files (part of every cache key)
-_GENERATOR_VERSION = 2
+_GENERATOR_VERSION = 3
 
 # TraCI variable ids (traci.constants), fixed by the protocol
 _VAR_SPEED, _VAR_POSITION, _VAR_ANGLE = 0x40, 0x42, 0x43
@@ -133,6 +133,18 @@ def run_tool(name: str, args: Sequence[str], cwd: Path | None = None) -> None:
         SumoError: the tool failed (its error output is in the message).
     """
     cmd = [str(_tool(name)), *args]
+    _run(name, cmd, cwd)
+
+
+def run_python_tool(name: str, args: Sequence[str], cwd: Path | None = None) -> None:
+    """Run one of SUMO's Python tools (``randomTrips.py``) with this interpreter, like :func:`run_tool`."""
+    script = sumo_home() / "tools" / name
+    if not script.is_file():
+        raise SumoError(f"SUMO tool {name} not found at {script}; reinstall the 'sumo' extra")
+    _run(name, [sys.executable, str(script), *args], cwd)
+
+
+def _run(name: str, cmd: list[str], cwd: Path | None) -> None:
     env = dict(os.environ, SUMO_HOME=str(sumo_home()))
     import threading
 
@@ -216,7 +228,9 @@ class Scenario:
 
 def check_generated(cfg: ScenarioConfig) -> None:
     """Refuse (ConfigError, naming the keys) a ``road`` / ``vehicles`` combination with no generated
-    scenario: the grid's random walk keeps a fixed population; the highway's flows need an open one."""
+    scenario. The grid has two demands: random walks for a fixed population, ``randomTrips.py`` trips for
+    an open one; the highway's flows need an open population; open demands are sized by the slowest
+    desired speed."""
     road, veh = cfg.road, cfg.vehicles
     if veh.speed_max_mps <= 0:
         raise ConfigError("vehicles.mobility=sumo needs vehicles.speed_max_mps > 0 (the network's speed limit)")
@@ -225,13 +239,11 @@ def check_generated(cfg: ScenarioConfig) -> None:
             "a generated SUMO highway (road.kind=highway, vehicles.sumo_config null) has vehicles entering at one "
             "end and leaving at the other: set vehicles.population=open (the sumo-highway preset does)"
         )
-    if road.kind == "grid" and veh.population == "open":
+    if veh.population == "open" and veh.speed_min_mps <= 0:
         raise ConfigError(
-            "the generated SUMO grid keeps its vehicles on random walks (vehicles.population=fixed); for an open "
-            "population give a scenario in vehicles.sumo_config (e.g. demand from SUMO's randomTrips.py)"
+            "a generated open population needs vehicles.speed_min_mps > 0 (its demand is sized by the slowest "
+            "desired speed)"
         )
-    if road.kind == "highway" and veh.speed_min_mps <= 0:
-        raise ConfigError("a generated SUMO highway needs vehicles.speed_min_mps > 0 (the slowest desired speed)")
 
 
 def netgenerate_args(cfg: ScenarioConfig) -> list[str]:
@@ -458,7 +470,35 @@ def sumocfg_xml(net_file: str, route_file: str, step_s: float, seed: int) -> str
 HIGHWAY_SPEED_CLASSES = 8
 
 
-def highway_flows_xml(cfg: ScenarioConfig, horizon_s: float = ROUTE_HORIZON_S) -> tuple[str, float]:
+#: SUMO seconds over which a generated open demand's vehicle count is measured to calibrate it
+CALIBRATION_WINDOW_S = 120.0
+
+
+def count_in_network(cfg: ScenarioConfig, net_path: Path, routes_xml_text: str, seed: int) -> float:
+    """Mean number of vehicles in the network over :data:`CALIBRATION_WINDOW_S` seconds from
+    ``cfg.sumo_begin_s``, from a headless ``sumo`` run of the demand (``--summary-output``, the run's steps)."""
+    begin = cfg.sumo_begin_s
+    with tempfile.TemporaryDirectory(prefix="cv2x-calibrate-") as tmp:
+        t = Path(tmp)
+        (t / "demand.rou.xml").write_text(routes_xml_text)
+        run_tool(
+            "sumo",
+            ["-n", str(net_path), "-r", "demand.rou.xml", "--begin", "0", "--end", repr(begin + CALIBRATION_WINDOW_S),
+             "--step-length", repr(cfg.traffic.rri_ms / 1000.0), "--seed", str(seed), "--time-to-teleport", "-1",
+             "--summary-output", "summary.xml", "--no-step-log", "true", "--no-warnings", "true"],
+            cwd=t,
+        )  # fmt: skip
+        running = [
+            float(el.get("running", "0"))
+            for el in ET.parse(t / "summary.xml").getroot().iter("step")
+            if float(el.get("time", "0")) >= begin - 1e-9
+        ]
+    return float(np.mean(running)) if running else 0.0
+
+
+def highway_flows_xml(
+    cfg: ScenarioConfig, horizon_s: float = ROUTE_HORIZON_S, q: float | None = None
+) -> tuple[str, float]:
     """The highway demand: Poisson flows entering at either end, leaving at the other.
 
     Desired speeds are uniform on ``[speed_min_mps, speed_max_mps]``, discretised into
@@ -466,21 +506,22 @@ def highway_flows_xml(cfg: ScenarioConfig, horizon_s: float = ROUTE_HORIZON_S) -
     the speed limit ``speed_max_mps``). A vehicle at desired speed ``v`` stays ``L / v`` on the road,
     so the flow per direction that gives the resolved vehicle count ``N`` (half per direction) in
     free flow is ``q = (N / 2) / (L * mean(1 / v_k))`` vehicles per second, split equally over the
-    classes; SUMO draws the Poisson departures (``period="exp(rate)"``) with its seed. Car following
-    slows some vehicles, so the count in the network is at least this (docs/mobility.md reports it).
+    classes; SUMO draws the Poisson departures (``period="exp(rate)"``) with its seed.
+    :func:`build_scenario` then corrects ``q`` once by the count measured in SUMO
+    (:func:`count_in_network`), since car following and insertion change it.
+
+    Args:
+        cfg: the scenario.
+        horizon_s: SUMO time until which vehicles enter.
+        q: flow per direction, vehicles per second (None: the free-flow value above).
 
     Returns:
         ``(routes XML, q)``: the ``.rou.xml`` text and the flow per direction in vehicles per second.
     """
-    veh, road = cfg.vehicles, cfg.road
     k = HIGHWAY_SPEED_CLASSES
-    edges = np.linspace(veh.speed_min_mps, veh.speed_max_mps, k + 1)
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    q = 0.5 * cfg.n_vehicles / (road.length_m * float(np.mean(1.0 / mid)))
-    lines = ["<routes>"]
-    for c, v in enumerate(mid):
-        factor = v / veh.speed_max_mps
-        lines.append(f'    <vType id="v{c}" vClass="passenger" speedFactor="{factor:.6f}" speedDev="0"/>')
+    if q is None:
+        q = 0.5 * cfg.n_vehicles / (cfg.road.length_m * float(np.mean(1.0 / speed_classes(cfg))))
+    lines = ["<routes>", *_vtypes_xml(cfg)]
     lines.append('    <route id="east" edges="eastbound"/>')
     lines.append('    <route id="west" edges="westbound"/>')
     for way in ("east", "west"):
@@ -491,6 +532,101 @@ def highway_flows_xml(cfg: ScenarioConfig, horizon_s: float = ROUTE_HORIZON_S) -
             )
     lines.append("</routes>")
     return "\n".join(lines) + "\n", q
+
+
+def speed_classes(cfg: ScenarioConfig) -> FloatArray:
+    """[K] desired speeds (m/s) of the open demands' vTypes: the midpoints of
+    :data:`HIGHWAY_SPEED_CLASSES` equal bins of ``[speed_min_mps, speed_max_mps]``."""
+    veh = cfg.vehicles
+    edges = np.linspace(veh.speed_min_mps, veh.speed_max_mps, HIGHWAY_SPEED_CLASSES + 1)
+    return np.asarray(0.5 * (edges[:-1] + edges[1:]))
+
+
+def _vtypes_xml(cfg: ScenarioConfig) -> list[str]:
+    factors = speed_classes(cfg) / cfg.vehicles.speed_max_mps
+    return [
+        f'    <vType id="v{c}" vClass="passenger" speedFactor="{f:.6f}" speedDev="0"/>' for c, f in enumerate(factors)
+    ]
+
+
+def _route_lengths_m(routes: Path, net: _Net) -> FloatArray:
+    """[V] length of every ``<route edges=...>`` of a route file (edge lengths summed)."""
+    length = dict(zip(net.edges, net.length_m.tolist(), strict=True))
+    out = [sum(length[e] for e in el.get("edges", "").split()) for el in ET.parse(routes).getroot().iter("route")]
+    return np.array(out)
+
+
+def random_trips_xml(
+    cfg: ScenarioConfig,
+    net_path: Path,
+    seeds: Sequence[int],
+    horizon_s: float,
+    sumo_seed: int,
+) -> tuple[str, float]:
+    """The open grid's demand: SUMO's ``randomTrips.py`` (origins and destinations uniform over the
+    network's length, routed by ``duarouter``), sized for the resolved vehicle count ``N``.
+
+    Little's law sizes it: a trip of length ``l`` at desired speed ``v`` lasts ``l / v``, so the
+    departure period that keeps ``N`` vehicles in free flow is ``mean(l) * mean(1 / v) / N``; the
+    mean route length comes from a first ``randomTrips`` sample of 1,000 trips. Junctions, turns and
+    queues slow vehicles, so the period is then corrected once by the count measured in SUMO
+    (:func:`count_in_network` with ``sumo_seed``). Departures are uniform random over
+    ``[0, horizon_s]`` (``--random-depart``); each trip gets a desired-speed class
+    (:func:`speed_classes`). ``seeds`` (three, drawn from the simulator's ``mobility`` stream): the
+    sample's and the trips' ``randomTrips`` seeds and the seed of the speed-class draws.
+
+    Returns:
+        ``(routes XML, period_s)``.
+    """
+    net = read_net(net_path)
+    common = ["-n", str(net_path)]
+    with tempfile.TemporaryDirectory(prefix="cv2x-trips-") as tmp:
+        t = Path(tmp)
+        run_python_tool(
+            "randomTrips.py",
+            [*common, "-o", "sample.trips.xml", "-r", "sample.rou.xml", "--seed", str(seeds[0]), "-b", "0",
+             "-e", "1000", "--period", "1"],
+            cwd=t,
+        )  # fmt: skip
+        mean_len_m = float(np.mean(_route_lengths_m(t / "sample.rou.xml", net)))
+    period_s = mean_len_m * float(np.mean(1.0 / speed_classes(cfg))) / cfg.n_vehicles
+    kinds = np.random.default_rng(seeds[2]).integers(
+        0, HIGHWAY_SPEED_CLASSES, size=int(horizon_s / (0.25 * period_s)) + 16
+    )
+    text = _random_trips(cfg, net_path, seeds[1], horizon_s, period_s, kinds)
+    # one correction by SUMO's count (within a factor 4 either way)
+    period_s *= float(np.clip(count_in_network(cfg, net_path, text, sumo_seed) / cfg.n_vehicles, 0.25, 4.0))
+    return _random_trips(cfg, net_path, seeds[1], horizon_s, period_s, kinds), period_s
+
+
+def _random_trips(
+    cfg: ScenarioConfig, net_path: Path, seed: int, horizon_s: float, period_s: float, kinds: IntArray
+) -> str:
+    """``randomTrips.py`` routes at ``period_s``, trip ``i`` of desired-speed class ``kinds[i]``."""
+    with tempfile.TemporaryDirectory(prefix="cv2x-trips-") as tmp:
+        t = Path(tmp)
+        run_python_tool(
+            "randomTrips.py",
+            ["-n", str(net_path), "-o", "trips.xml", "-r", "trips.rou.xml", "--seed", str(seed), "-b", "0",
+             "-e", repr(float(horizon_s)), "--period", repr(period_s), "--random-depart"],
+            cwd=t,
+        )  # fmt: skip
+        root = ET.parse(t / "trips.rou.xml").getroot()
+    vehicles = list(root.iter("vehicle"))
+    if len(vehicles) > kinds.size:
+        raise SumoError(f"randomTrips.py wrote {len(vehicles)} trips, more than the {kinds.size} speed classes drawn")
+    lines = ["<routes>", *_vtypes_xml(cfg)]
+    for el, c in zip(vehicles, kinds.tolist(), strict=False):
+        route = el.find("route")
+        edges = "" if route is None else route.get("edges", "")
+        lines.append(
+            f'    <vehicle id="trip{el.get("id")}" type="v{c}" depart="{el.get("depart")}" departLane="best" '
+            f'departSpeed="desired" departPos="random_free">'
+        )
+        lines.append(f'        <route edges="{edges}"/>')
+        lines.append("    </vehicle>")
+    lines.append("</routes>")
+    return "\n".join(lines) + "\n"
 
 
 def draw_sumo_seed(rng: np.random.Generator) -> int:
@@ -512,8 +648,8 @@ def build_scenario(cfg: ScenarioConfig, rng: np.random.Generator) -> Scenario:
         path = check_sumocfg(user)
         return Scenario(path, seed, step_s, generated=False)
     net_path = build_network(cfg)
-    if cfg.road.kind == "highway":
-        rou, _ = highway_flows_xml(cfg, cfg.sumo_begin_s + ROUTE_HORIZON_S)
+    if cfg.road.kind == "highway" or cfg.vehicles.population == "open":
+        return _open_demand_scenario(cfg, net_path, seed, [int(x) for x in rng.integers(0, 2**31 - 1, size=3)])
     else:
         net = read_net(net_path)
         routes, _, factor = random_walk_routes(net, cfg, cfg.n_vehicles, rng)
@@ -529,6 +665,39 @@ def build_scenario(cfg: ScenarioConfig, rng: np.random.Generator) -> Scenario:
     }
 
     def build(folder: Path) -> None:
+        (folder / ROUTE_FILE).write_text(rou)
+        (folder / CFG_FILE).write_text(sumocfg)
+
+    return Scenario(cached("scenario", key, build) / CFG_FILE, seed, step_s, generated=True)
+
+
+def _open_demand_scenario(cfg: ScenarioConfig, net_path: Path, seed: int, demand_seeds: list[int]) -> Scenario:
+    """The generated open-population scenario (highway flows or grid random trips), cached under a key
+    of its inputs: generating it runs SUMO (the calibration) and ``randomTrips.py``, about a second."""
+    step_s = cfg.traffic.rri_ms / 1000.0
+    horizon_s = cfg.sumo_begin_s + ROUTE_HORIZON_S
+    demand = "flows" if cfg.road.kind == "highway" else "random_trips"
+    sumocfg = sumocfg_xml(f"../{net_path.parent.name}/{NET_FILE}", ROUTE_FILE, step_s, seed)
+    v = cfg.vehicles
+    key = {
+        "what": "scenario",
+        "generator": _GENERATOR_VERSION,
+        "sumo": sumo_version(),
+        "net": net_path.parent.name,
+        "demand": demand,
+        "inputs": [cfg.n_vehicles, v.speed_min_mps, v.speed_max_mps, cfg.sumo_begin_s, horizon_s, step_s],
+        "seeds": [seed, *demand_seeds],
+        "sumocfg": hashlib.sha256(sumocfg.encode()).hexdigest(),
+    }
+
+    def build(folder: Path) -> None:
+        if demand == "flows":
+            rou, q = highway_flows_xml(cfg, horizon_s)
+            # one correction by SUMO's count (within a factor 4 either way)
+            count = count_in_network(cfg, net_path, rou, seed)
+            rou, _ = highway_flows_xml(cfg, horizon_s, q * float(np.clip(cfg.n_vehicles / max(count, 1.0), 0.25, 4.0)))
+        else:
+            rou, _ = random_trips_xml(cfg, net_path, demand_seeds, horizon_s, seed)
         (folder / ROUTE_FILE).write_text(rou)
         (folder / CFG_FILE).write_text(sumocfg)
 

@@ -209,8 +209,8 @@ def test_config_errors_name_the_key(tmp_path: Path) -> None:
         Simulator(apply_overrides(preset("highway"), ["vehicles.mobility=sumo"]))
     with pytest.raises(ConfigError, match=r"vehicles\.population=open needs vehicles\.mobility=sumo or trace"):
         apply_overrides(preset("paper"), ["vehicles.population=open"])
-    with pytest.raises(ConfigError, match=r"generated SUMO grid .* \(vehicles\.population=fixed\)"):
-        Simulator(_cfg("vehicles.population=open"))
+    with pytest.raises(ConfigError, match=r"open population needs vehicles\.speed_min_mps > 0"):
+        Simulator(_cfg("vehicles.population=open", "vehicles.speed_min_mps=0"))
 
 
 def test_vehicle_count_outside_the_scenario(tmp_path: Path) -> None:
