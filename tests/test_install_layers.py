@@ -92,7 +92,8 @@ def test_cli_start_imports_nothing_heavy() -> None:
             "-c",
             "import sys, cv2x_marl.cli as c\n"
             "p = c.build_parser()\n"
-            "heavy = ('sklearn', 'scipy', 'torch', 'stable_baselines3', 'ray', 'libsumo', 'matplotlib', 'pandas')\n"
+            "heavy = ('sklearn', 'scipy', 'torch', 'stable_baselines3', 'ray', 'libsumo', 'matplotlib', 'pandas',\n"
+            "         'gymnasium', 'pettingzoo', 'numpy')\n"
             "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy)))",
         ],
         capture_output=True,
@@ -101,3 +102,31 @@ def test_cli_start_imports_nothing_heavy() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize(
+    "first",
+    ["", "import gymnasium\n", "import pettingzoo\n", "import gymnasium, pettingzoo\n"],
+    ids=["cv2x_marl-first", "gymnasium-first", "pettingzoo-first", "both-first"],
+)
+def test_ids_registered_whichever_package_is_imported_first(first: str) -> None:
+    """``import cv2x_marl`` imports neither Gymnasium nor PettingZoo (the CLI starts without them), yet
+    the ids are there as soon as either is imported, before or after the package."""
+    code = (
+        first
+        + "import sys, cv2x_marl\n"
+        + "print(sorted(m for m in ('gymnasium', 'pettingzoo') if m in sys.modules))\n"
+        + "import gymnasium, pettingzoo\n"
+        + "print(all(f'cv2x/SingleMover-{v}' in gymnasium.registry for v in ('v0', 'v1', 'v2')))\n"
+        + "print(all(f'cv2x/Mobility-{v}' in r for v in ('v0', 'v1', 'v2')\n"
+        + "          for r in (pettingzoo.parallel_registry, pettingzoo.aec_registry)))\n"
+        + "env = gymnasium.make('cv2x/SingleMover-v2', max_cycles=3)\n"
+        + "print(env.reset(seed=1)[0].shape)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    imported, gym_ok, pz_ok, shape = proc.stdout.split("\n")[:4]
+    # PettingZoo imports Gymnasium, so importing it first imports both
+    expected = {"": [], "import gymnasium\n": ["gymnasium"]}.get(first, ["gymnasium", "pettingzoo"])
+    assert imported == str(expected)
+    assert gym_ok == "True" and pz_ok == "True" and shape == "(174,)"
