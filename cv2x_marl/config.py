@@ -409,10 +409,19 @@ class LinkConfig(Section):
     )
     inband_emission_db: float | None = _key(
         None,
-        "Leakage from transmissions on other subchannels of the same subframe, relative; null: none",
+        "Leakage from transmissions on other subchannels of the same subframe, relative, with "
+        "inband_emission_model=flat; null: none (must be null with inband_emission_model=3gpp)",
         "dB",
         -80.0,
         0.0,
+    )
+    inband_emission_model: str = _key(
+        "flat",
+        "In-band emission from transmissions on other subchannels of the same subframe: flat: the constant "
+        "inband_emission_db (the model so far; none when that is null); 3gpp: the TS 36.101 6.5.2.3 in-band "
+        "emission mask with TR 36.843 A.2.1.5's W, X, Y, Z as WiLabV2Xsim uses them (general, IQ image, carrier "
+        "leakage; sim/inband.py, docs/model.md; issue 13)",
+        choices=("flat", "3gpp"),
     )
     per_interpolation: str = _key(
         "linear",
@@ -435,6 +444,19 @@ class LinkConfig(Section):
         "docs/model.md, Scale); auto: sparse from 2,500 vehicles up. Without max_range_m it is always dense",
         choices=("auto", "dense", "sparse"),
     )
+
+    def _check(self) -> None:
+        if self.inband_emission_model == "3gpp" and self.inband_emission_db is not None:
+            raise ConfigError(
+                f"link.inband_emission_db ({self.inband_emission_db:g}) is the flat model's leakage: with "
+                "link.inband_emission_model=3gpp set link.inband_emission_db to null (or use "
+                "link.inband_emission_model=flat)"
+            )
+
+    @property
+    def has_inband_emission(self) -> bool:
+        """Whether transmissions on other subchannels of the same subframe interfere (either model)."""
+        return self.inband_emission_model == "3gpp" or self.inband_emission_db is not None
 
 
 @dataclass(frozen=True)

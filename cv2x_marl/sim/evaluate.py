@@ -4,7 +4,8 @@ Given stage-1 snapshots and one mover per snapshot, :class:`MoverLinks` answers 
 stood at position x, what would be the success probability of its packet at every receiver?"
 with the simulator's own link model: path loss from x to each receiver (the snapshot's shadowing
 and, by default, its LOS state per link), interference at each receiver from the other vehicles
-transmitting on the mover's resource (fixed: they do not move), noise, then the PER table / Rayleigh
+transmitting on the mover's resource (fixed: they do not move; plus the in-band emission of those
+on the other subchannels of its subframe when configured), noise, then the PER table / Rayleigh
 closed form / threshold. Expected values (no fading draw). Batched over snapshots: arrays are
 ``[B, N]`` for B snapshots of N vehicles.
 
@@ -23,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig
-from cv2x_marl.sim import channel, kernels, link
+from cv2x_marl.sim import channel, inband, kernels, link
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.simulator import Snapshot
 from cv2x_marl.units import db_to_linear, noise_power_dbm
@@ -112,6 +113,7 @@ class MoverLinks:
         shadow = np.zeros((b, n))
         interf = np.zeros((b, n))
         terms: list[FloatArray] = []
+        leakage = inband.pool_leakage_weights(config) if config.link.inband_emission_model == "3gpp" else None
         for k, (snap, i) in enumerate(zip(snapshots, movers, strict=True)):
             if snap.positions_m.shape[0] != n:
                 raise ValueError("all snapshots must hold the same number of vehicles")
@@ -139,6 +141,10 @@ class MoverLinks:
                 oth = np.flatnonzero((snap.slot == snap.slot[i]) & (res != res[i]))
                 p_oj = _power_at_all(config, road, snap, oth)
                 interf[k] += db_to_linear(config.link.inband_emission_db) * p_oj.sum(axis=1)
+            elif leakage is not None:  # 3gpp: weighted by the leakage from each one's subchannel into i's
+                oth = np.flatnonzero((snap.slot == snap.slot[i]) & (res != res[i]))
+                p_oj = _power_at_all(config, road, snap, oth)
+                interf[k] += p_oj @ leakage[snap.subchannel[i], snap.subchannel[oth]]
         c_max = max((t.shape[1] for t in terms), default=0)
         interferer = np.zeros((b, n, c_max))
         for k, t in enumerate(terms):
@@ -243,7 +249,8 @@ class SnapshotLinks:
     snapshot; positions are free. ``success(positions)`` returns ``P[tx, rx]`` for all N x N
     links: the signal from the moved transmitter (WINNER+ B1 or eq. 3 path loss, the snapshot's
     shadowing), interference from the moved co-channel transmitters (plus in-band emission from
-    the other subchannels of the subframe when configured), half duplex, noise, then the PER table
+    the other subchannels of the subframe when configured: ``link.inband_emission_model`` flat or
+    3gpp), half duplex, noise, then the PER table
     or the threshold. Distances fold on the torus when ``road.wrap_distances``.
 
     Two implementations, tested equal: numpy array code over the N x N pairs built on
@@ -278,6 +285,12 @@ class SnapshotLinks:
         if config.link.inband_emission_db is not None:
             same_slot_other = (slot[:, None] == slot[None, :]) & ~same_res
             self.interference_weight += float(db_to_linear(config.link.inband_emission_db)) * same_slot_other
+        elif config.link.inband_emission_model == "3gpp":  # M[subchannel of tx, subchannel of c]
+            leakage = inband.pool_leakage_weights(config)
+            assert leakage is not None
+            sub = snapshot.subchannel
+            same_slot_other = (slot[:, None] == slot[None, :]) & ~same_res
+            self.interference_weight += leakage[sub[:, None], sub[None, :]] * same_slot_other
         radio = config.radio
         self.eirp_dbm = radio.tx_power_dbm + radio.tx_antenna_gain_dbi + radio.rx_antenna_gain_dbi
         self.noise_mw = float(db_to_linear(noise_power_dbm(radio.noise_dbm, radio.noise_figure_db)))

@@ -193,13 +193,16 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
         snapshot = _SNAPSHOT_PER_CELL * cells
         snapshot_build = _SNAPSHOT_BUILD_PER_PAIR * p
     periods = max(1, sps.sensing_window_ms // rri)
-    sensing = (4 * periods + 16) * n * n_res + (8 * n * rri if cfg.link.inband_emission_db is not None else 0)
+    # in-band emission: flat, the per-(receiver, subframe) sums [N, RRI]; 3gpp, the leakage per (receiver, resource)
+    inband = 8 * n * n_res if cfg.link.inband_emission_model == "3gpp" else 0
+    inband += 8 * n * rri if cfg.link.inband_emission_db is not None else 0
+    sensing = (4 * periods + 16) * n * n_res + inband
     lo, hi = round(sps.counter_min * max(1.0, 100.0 / rri)), round(sps.counter_max * max(1.0, 100.0 / rri))
     reselecting = min(n, math.ceil(4.0 * n / (lo + hi)))  # twice the mean number of expiries per period
     candidates = sps.selection_window_subframes * sps.n_subchannels
     select = reselecting * candidates * (_SELECT_PER_CANDIDATE + 9 * periods) + 4 * n * n_res
     geometry = _GEOMETRY_PER_PAIR * p
-    compiled = sparse and not record and not rayleigh and cfg.link.inband_emission_db is None
+    compiled = sparse and not record and not rayleigh and not cfg.link.has_inband_emission  # as Simulator._chunk
     period = (_COMPILED_PERIOD_PER_LINK if compiled else _PERIOD_PER_LINK) * links
     last = _LAST_LINKS_PER_LINK * links
     if rayleigh:

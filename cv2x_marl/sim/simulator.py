@@ -16,8 +16,10 @@ SUMO scenario stepped once per period through libsumo, or a replayed SUMO FCD tr
 (:mod:`cv2x_marl.sim.sumo`, imported only then).
 
 Interference at receiver b on link a -> b is the sum over the other vehicles transmitting on
-a's subframe and subchannel (optionally in-band emission from the other subchannels of that
-subframe); b receives nothing in a subframe where it transmits (half duplex).
+a's subframe and subchannel, plus optionally in-band emission from the other subchannels of that
+subframe (``link.inband_emission_model``: a flat ``link.inband_emission_db``, or the 3GPP mask of
+:mod:`cv2x_marl.sim.inband`, weighted by the subchannel offset, which the S-RSSI sensing then
+sees too); b receives nothing in a subframe where it transmits (half duplex).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from numpy.typing import NDArray
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.rng import RngStreams
-from cv2x_marl.sim import channel, kernels, link, mobility, sps
+from cv2x_marl.sim import channel, inband, kernels, link, mobility, sps
 from cv2x_marl.sim.memory import check_memory, uses_sparse_state
 from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
 from cv2x_marl.sim.road import Road
@@ -228,6 +230,11 @@ class Simulator:
     def __init__(self, config: ScenarioConfig) -> None:
         if config.link.model == "rayleigh" and config.link.inband_emission_db is not None:
             raise ConfigError("link.inband_emission_db is not supported with link.model=rayleigh; set it to null")
+        if config.link.model == "rayleigh" and config.link.inband_emission_model == "3gpp":
+            raise ConfigError(
+                "link.inband_emission_model=3gpp is not supported with link.model=rayleigh (its closed form "
+                "counts co-channel interferers only); use link.inband_emission_model=flat"
+            )
         self.config = config
         try:
             self.road = Road.from_config(config.road)
@@ -242,6 +249,11 @@ class Simulator:
         self.noise_mw = float(db_to_linear(noise_power_dbm(config.radio.noise_dbm, config.radio.noise_figure_db)))
         self.curve = link.load_per_curve(config.link.per_curve, config.link.per_interpolation)
         self._rsrp_offset_db = 10.0 * np.log10(12 * config.sps.subchannel_rbs)
+        #: [n_sub, n_sub] in-band leakage M[victim, interferer] between different subchannels (zero
+        #: diagonal) with link.inband_emission_model=3gpp; None otherwise (flat keeps its own arithmetic)
+        self._leakage: FloatArray | None = None
+        if config.link.inband_emission_model == "3gpp":
+            self._leakage = inband.pool_leakage_weights(config)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
@@ -579,12 +591,7 @@ class Simulator:
         active = (slot >= lo) & (slot < hi)
         if not np.any(active):
             return
-        if (
-            self.compiled_period
-            and cols is None
-            and cfg.link.model != "rayleigh"
-            and cfg.link.inband_emission_db is None
-        ):
+        if self.compiled_period and cols is None and cfg.link.model != "rayleigh" and not cfg.link.has_inband_emission:
             self._chunk_compiled(geo, active, acc)
             return
         sel = active[geo.tx]
@@ -598,6 +605,10 @@ class Simulator:
             slot_key = rx * self.rri + slot[tx]
             total_slot = np.bincount(slot_key, weights=s_mw, minlength=self.n * self.rri)
             i_mw = i_mw + db_to_linear(cfg.link.inband_emission_db) * np.maximum(total_slot[slot_key] - total[key], 0.0)
+        leak_mw: FloatArray | None = None
+        if self._leakage is not None:  # 3gpp: leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]
+            leak_mw = (total.reshape(self.n * self.rri, self.n_sub) @ self._leakage.T).reshape(-1)
+            i_mw = i_mw + leak_mw[key]
         hd = slot[rx] == slot[tx]
         sinr_db = 10.0 * np.log10(s_mw / (i_mw + self.noise_mw))
         snr_db = 10.0 * np.log10(s_mw / self.noise_mw)
@@ -640,6 +651,8 @@ class Simulator:
         self.last_links = (tx, rx, p, cause)
         # sensing: S-RSSI of every resource heard in this chunk, SCI RSRP of every decodable SCI
         self._period_rssi += total
+        if leak_mw is not None:  # 3gpp: S-RSSI is the energy in the subchannel, leakage included (as WiLabV2Xsim)
+            self._period_rssi += leak_mw
         sci = ~fail & ~self._releasing[tx]  # a UE's last SCI before reselecting reserves nothing (standard)
         np.maximum.at(self._period_rsrp, key[sci], rx_dbm[sci] - self._rsrp_offset_db)
 
@@ -673,7 +686,7 @@ class Simulator:
 
     def _chunk_compiled(self, geo: _Geometry, active: NDArray[np.bool_], acc: PrrAccumulator | None) -> None:
         """:meth:`_chunk` in compiled passes over the period's pairs (the sparse state, no links table,
-        ``link.model`` per_table or threshold, no in-band emission): the same draws, the same sums in
+        ``link.model`` per_table or threshold, no in-band emission of either model): the same draws, the same sums in
         the same order and numpy's ``log10``; the PER interpolation compiled (``np.interp``'s formula),
         tested equal to the numpy path (``tests/sim/test_scale.py``)."""
         cfg = self.config
