@@ -381,6 +381,15 @@ class SpsConfig(Section):
         "of a UE that will reselect carries no reservation (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1; issue 13)",
         choices=("always", "standard"),
     )
+    reselection_timing: str = _key(
+        "period_end",
+        "When counters run and reselections happen: period_end: for every vehicle at the end of each reservation "
+        "period, on the sensing map of the period just ended (the model so far); per_ue: at each UE's own packet "
+        "arrival (its generation slot n): the counter counts down there, and a reselecting UE senses the 1000 ms "
+        "before n (SCIs heard earlier in the same period included) and selects in [n + T1, n + T2], from the same "
+        "period on when the resource falls after n (TS 36.321 5.14.1.1, TS 36.213 14.1.1.6; issue 13)",
+        choices=("period_end", "per_ue"),
+    )
 
     def _check(self) -> None:
         if self.counter_min > self.counter_max:

@@ -197,6 +197,8 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
     inband = 8 * n * n_res if cfg.link.inband_emission_model == "3gpp" else 0
     inband += 8 * n * rri if cfg.link.inband_emission_db is not None else 0
     sensing = (4 * periods + 16) * n * n_res + inband
+    if sps.reselection_timing == "per_ue":  # the previous period's SCI RSRP map, float64 [N, R]
+        sensing += 8 * n * n_res
     lo, hi = round(sps.counter_min * max(1.0, 100.0 / rri)), round(sps.counter_max * max(1.0, 100.0 / rri))
     reselecting = min(n, math.ceil(4.0 * n / (lo + hi)))  # twice the mean number of expiries per period
     candidates = sps.selection_window_subframes * sps.n_subchannels

@@ -9,7 +9,8 @@ the part of it a ``run`` covers) is one batch of array operations over vehicle p
     -> per (receiver, resource) power sums (bincount) -> SINR of eq. 8 for every link
     -> success probability + sampled outcome (+ loss cause, NSV, l) -> metrics, links table
     -> sensing (S-RSSI, SCI RSRP); at the end of the period: SPS counters and reselection,
-       then mobility.
+       then mobility (``sps.reselection_timing=per_ue``: counters and reselections at each UE's
+       packet arrival instead, the period cut after the slots where a counter expires).
 
 Mobility (``vehicles.mobility``): the lane model of :mod:`cv2x_marl.sim.mobility` (default), or a
 SUMO scenario stepped once per period through libsumo, or a replayed SUMO FCD trace
@@ -255,6 +256,8 @@ class Simulator:
         if config.link.inband_emission_model == "3gpp":
             self._leakage = inband.pool_leakage_weights(config)
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
+        #: sps.reselection_timing=per_ue: counters and reselections at each UE's packet arrival
+        self._per_ue = config.sps.reselection_timing == "per_ue"
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
         #: the compiled period (_chunk_compiled) where it applies: with the sparse state
@@ -313,11 +316,16 @@ class Simulator:
             self.initial_resource[~self.present] = False
         self.n_entries = 0
         self.n_departures = 0
-        if cfg.sps.reservation_signalling == "standard":
+        if cfg.sps.reservation_signalling == "standard" and not self._per_ue:  # per_ue: at the arrivals
             self._decide_releases()
         self.subframe = 0
         self._rssi_ring = np.full((self._sensing_periods, self.n, self.n_res), np.nan, dtype=np.float32)
         self._new_period_buffers()
+        if self._per_ue:
+            #: [N * R] SCI RSRP of the period before the current one (per_ue sensing), dBm
+            self._prev_rsrp = np.full(self.n * self.n_res, -np.inf)
+            #: [N] the slot a vehicle left by a reselection in the current period (-1: none)
+            self._moved_from = np.full(self.n, -1, dtype=np.int64)
         self._geometry: _Geometry | None = None
         self.n_reselections = 0
         self.n_expiries = 0
@@ -563,7 +571,11 @@ class Simulator:
         while self.subframe < end:
             lo = self.subframe % self.rri
             hi = min(self.rri, lo + end - self.subframe)
+            if self._per_ue:  # stop after the next subframe where a counter expires (or reaches 0)
+                hi = self._next_arrival_event(lo, hi)
             self._chunk(lo, hi, acc if record else None, cols if keep_links else None)
+            if self._per_ue:
+                self._arrivals(lo, hi)
             if keep_links and links_sink is not None and cols[LINK_COLUMNS[0]]:
                 links_sink({c: np.concatenate(v) for c, v in cols.items()})
                 for v in cols.values():
@@ -803,18 +815,127 @@ class Simulator:
         keep = self.rng.sps.random(self.n) < self.config.sps.keep_probability
         self._releasing = last & ~keep
 
-    def _sensing_selection(self, vehicles: IntArray, last_rsrp: FloatArray, exclude_own: bool) -> IntArray:
+    def _sensing_selection(
+        self, vehicles: IntArray, last_rsrp: FloatArray | None, exclude_own: bool, at_slot: int | None = None
+    ) -> IntArray:
         """Resources chosen by sensing (TS 36.213 14.1.1.6) for ``vehicles`` [V]: the SCIs of the
-        period just ended (``last_rsrp`` [N, R], dBm) and the S-RSSI of the sensing window."""
+        period just ended (``last_rsrp`` [N, R], dBm) and the S-RSSI of the sensing window; with
+        ``at_slot`` (``sps.reselection_timing=per_ue``: the vehicles' packet arrival, a slot of the
+        current period) the sensing window is the 1000 ms before it instead (:meth:`_sensing_at`)."""
         cfg = self.config
         cand = sps.candidate_resources(self.generation_slot[vehicles], cfg.sps, self.rri)
-        rsrp = last_rsrp[vehicles[:, None], cand]
+        if at_slot is None:
+            assert last_rsrp is not None
+            rsrp = last_rsrp[vehicles[:, None], cand]
+        else:
+            rsrp, rssi_avg = self._sensing_at(vehicles, cand, at_slot)
         if exclude_own:
             rsrp = np.where(cand // self.n_sub == self.slot[vehicles][:, None], np.inf, rsrp)
-        rssi = _nan_mean_first_axis(self._rssi_ring[:, vehicles[:, None], cand])
+        if at_slot is None:
+            rssi = _nan_mean_first_axis(self._rssi_ring[:, vehicles[:, None], cand])
+        else:
+            rssi = rssi_avg
         rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
         choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
         return np.asarray(cand[np.arange(vehicles.size), choice])
+
+    def _sensing_at(self, vehicles: IntArray, cand: IntArray, at_slot: int) -> tuple[FloatArray, NDArray[np.float32]]:
+        """``sps.reselection_timing=per_ue``: what ``vehicles`` [V] sensed in the 1000 ms before their
+        packet arrival at slot ``at_slot`` of the current period, for their candidates ``cand`` [V, M].
+
+        A candidate in slot ``s`` is reserved by an SCI heard ``RRI`` subframes before it (TS 36.213
+        14.1.1.6 step 6 with one RRI): for ``s < at_slot`` that SCI was heard earlier in this period,
+        for ``s >= at_slot`` in the previous one. The S-RSSI of slot ``s`` averages the periods whose
+        slot ``s`` lies in the window: this period and the 9 before it for ``s < at_slot``, the 10 before
+        it otherwise (at RRI 100). A vehicle does not monitor its own transmission (NaN).
+
+        Returns:
+            ``rsrp`` [V, M] (dBm, ``-inf``: none heard) and the window-average S-RSSI [V, M] (mW, NaN:
+            never measured).
+        """
+        n, r = self.n, self.n_res
+        rows = vehicles[:, None]
+        earlier = cand // self.n_sub < at_slot  # heard in this period, before the arrival
+        cur = self._period_rsrp.reshape(n, r)[rows, cand]
+        prev = self._prev_rsrp.reshape(n, r)[rows, cand]
+        rsrp = np.where(earlier, cur, prev)
+        ring = self._rssi_ring[:, rows, cand]  # [P, V, M] (a copy: fancy indexing)
+        now = (self._period_rssi.reshape(n, r)[rows, cand] + self.noise_mw).astype(np.float32)
+        now[cand // self.n_sub == self.slot[vehicles][:, None]] = np.nan  # its own transmission this period
+        oldest = (self.subframe // self.rri) % self._sensing_periods  # holds the period RRI x P ago
+        ring[oldest] = np.where(earlier, now, ring[oldest])
+        return rsrp, _nan_mean_first_axis(ring)
+
+    def _next_arrival_event(self, lo: int, hi: int) -> int:
+        """``sps.reselection_timing=per_ue``: the end of the next chunk of slots ``[lo, hi)``: one past the
+        first slot where a vehicle's packet arrives with its counter expired (or, with
+        ``sps.reservation_signalling=standard``, about to reach 0), so that its reselection (release)
+        takes effect from the next slot on; ``hi`` when there is none."""
+        last = 1 if self.config.sps.reservation_signalling == "standard" else 0
+        g = self.generation_slot
+        event = (self.resource >= 0) & (self.counter <= last) & (g >= lo) & (g < hi)
+        return int(g[event].min()) + 1 if np.any(event) else hi
+
+    def _arrivals(self, lo: int, hi: int) -> None:
+        """``sps.reselection_timing=per_ue``: the packet arrivals in slots ``[lo, hi)`` of the current
+        period, after the transmissions of those slots (TS 36.321 5.14.1.1).
+
+        A UE whose counter has expired (0) keeps its resource with ``sps.keep_probability`` (with
+        ``reservation_signalling=standard``: as decided when the counter reached 0) or reselects by
+        sensing the 1000 ms before its arrival (:meth:`_sensing_at`), and draws a new counter; then
+        every arriving UE counts its coming transmission (counter - 1). :meth:`_next_arrival_event`
+        ends the chunk at the slot of such arrivals, so a new resource after the arrival slot is used
+        from this period on (the UE may send twice or not at all in the period of a reselection: one
+        transmission per packet). With ``standard``, a UE whose counter reaches 0 draws keep/reselect
+        now, and the SCI of its coming transmission reserves nothing if it will reselect.
+        """
+        cfg = self.config
+        g = self.generation_slot
+        arrived = np.flatnonzero((self.resource >= 0) & (g >= lo) & (g < hi))
+        if not arrived.size:
+            return
+        expired = arrived[self.counter[arrived] <= 0]
+        if expired.size:
+            at = hi - 1
+            assert np.all(g[expired] == at)  # the chunk ends at the slot of the arrivals with an expired counter
+            if cfg.sps.reservation_signalling == "standard":
+                keep = ~self._releasing[expired]
+                self._releasing[expired] = False
+            else:
+                keep = self.rng.sps.random(expired.size) < cfg.sps.keep_probability
+            reselect = expired[~keep]
+            self.n_expiries += int(expired.size)
+            self.n_expiries_per_vehicle[expired] += 1
+            self.n_keeps += int(keep.sum())
+            self.counter[expired] = sps.draw_counters(cfg.sps, self.rri, expired.size, self.rng.sps)
+            if reselect.size:
+                old_slot = self.slot[reselect]
+                self.resource[reselect] = self._sensing_selection(
+                    reselect, None, cfg.sps.exclude_unmonitored, at_slot=at
+                )
+                self._moved_from[reselect] = old_slot
+                self.initial_resource[reselect] = False
+                self.n_reselections += int(reselect.size)
+        self.counter[arrived] -= 1
+        if cfg.sps.reservation_signalling == "standard":
+            last = arrived[self.counter[arrived] == 0]
+            if last.size:
+                keep_last = self.rng.sps.random(last.size) < cfg.sps.keep_probability
+                self._releasing[last] = ~keep_last
+
+    def _sent_this_period(self, veh: IntArray) -> tuple[IntArray, IntArray]:
+        """``(vehicle, slot)`` of every transmission of ``veh`` in the period just ended. Period-end
+        reselection: each vehicle's slot. ``per_ue``: a vehicle that reselected at its arrival ``g``
+        sent on its old slot if that was ``<= g`` and on its new one if that is ``> g``."""
+        slot = self.slot[veh]
+        if not self._per_ue:
+            return veh, slot
+        old = self._moved_from[veh]
+        g = self.generation_slot[veh]
+        moved = old >= 0
+        new_sent = ~moved | (slot > g)
+        old_sent = moved & (old <= g)
+        return np.concatenate([veh[new_sent], veh[old_sent]]), np.concatenate([slot[new_sent], old[old_sent]])
 
     def _select_joining(self, last_rsrp: FloatArray) -> None:
         """``vehicles.population=open``: the vehicles that entered at the end of the previous period and
@@ -864,18 +985,41 @@ class Simulator:
         self.present = st.present.copy()
 
     def _end_period(self) -> None:
-        """Commit sensing, run the SPS counters and reselections, then move the vehicles."""
+        """Commit sensing, run the SPS counters and reselections (``sps.reselection_timing=period_end``;
+        ``per_ue``: they ran at the arrivals), then move the vehicles."""
         cfg = self.config
         k = (self.subframe // self.rri - 1) % self._sensing_periods
         ring = self._period_rssi.reshape(self.n, self.n_res).astype(np.float32)
         ring += np.float32(self.noise_mw)
         veh = np.arange(self.n) if self.present is None else np.flatnonzero(self.resource >= 0)  # transmitters
+        veh, sent_slot = self._sent_this_period(veh)
         own = veh * self.n_res
-        own_res = (self.slot[veh] * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
+        own_res = (sent_slot * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
         ring.reshape(-1)[(own[:, None] + own_res).reshape(-1)] = np.nan  # not monitored (half duplex)
         self._rssi_ring[k] = ring
         last_rsrp = self._period_rsrp.reshape(self.n, self.n_res)
 
+        if self._per_ue:  # counters and reselections ran at the arrivals (_arrivals)
+            self._prev_rsrp = self._period_rsrp
+            self._moved_from.fill(-1)
+            if self.present is not None:
+                self._select_joining(last_rsrp)
+        else:
+            self._counters_and_reselections(last_rsrp)
+        self._new_period_buffers()
+        if self._source is not None:
+            self.state = self._source.advance()
+            if self.present is not None:
+                self._admit()
+        else:
+            assert isinstance(self.state, mobility.VehicleState)
+            self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
+        self._geometry = None
+
+    def _counters_and_reselections(self, last_rsrp: FloatArray) -> None:
+        """``sps.reselection_timing=period_end``: every vehicle's counter and reselection at the end of
+        the period, on the SCIs of the period just ended (``last_rsrp`` [N, R], dBm)."""
+        cfg = self.config
         if self.present is None:
             self.counter -= 1
             expired = self.counter <= 0
@@ -901,12 +1045,3 @@ class Simulator:
             self._select_joining(last_rsrp)
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()
-        self._new_period_buffers()
-        if self._source is not None:
-            self.state = self._source.advance()
-            if self.present is not None:
-                self._admit()
-        else:
-            assert isinstance(self.state, mobility.VehicleState)
-            self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
-        self._geometry = None
