@@ -331,6 +331,8 @@ class Simulator:
         self.n_expiries = 0
         self.n_keeps = 0
         self.offsets_m = np.zeros((self.n, 2))
+        #: (tx, rx, p_success, cause) [L] of the last simulated part of a period (the env's traffic mode reads
+        #: the period it ran); per_ue: all chunks of that part, in order
         self.last_links: tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]] | None = None
         self._ready = True
         warm = cfg.sim.warmup_subframes if warmup_subframes is None else warmup_subframes
@@ -568,13 +570,19 @@ class Simulator:
         cols: dict[str, list[np.ndarray]] = {c: [] for c in LINK_COLUMNS}
         t0 = time.perf_counter()
         end = self.subframe + n_subframes
+        period_links: list[tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]]] = []  # per_ue: the chunks
         while self.subframe < end:
             lo = self.subframe % self.rri
             hi = min(self.rri, lo + end - self.subframe)
             if self._per_ue:  # stop after the next subframe where a counter expires (or reaches 0)
                 hi = self._next_arrival_event(lo, hi)
+                if lo == 0:
+                    period_links = []
+            before = self.last_links
             self._chunk(lo, hi, acc if record else None, cols if keep_links else None)
             if self._per_ue:
+                if self.last_links is not before:
+                    period_links.append(self.last_links)  # type: ignore[arg-type]  # set by _chunk
                 self._arrivals(lo, hi)
             if keep_links and links_sink is not None and cols[LINK_COLUMNS[0]]:
                 links_sink({c: np.concatenate(v) for c, v in cols.items()})
@@ -585,6 +593,9 @@ class Simulator:
                 self._end_period()
             if progress is not None:
                 progress(hi - lo)
+        if len(period_links) > 1:  # per_ue cuts periods: last_links holds the last period's part run here
+            tx, rx, p, cause = (np.concatenate(parts) for parts in zip(*period_links, strict=True))
+            self.last_links = (tx, rx, p, cause)
         keep = keep_links and links_sink is None
         links = {c: np.concatenate(v) if v else np.empty(0) for c, v in cols.items()} if keep else None
         return RunResult(acc, links, n_subframes, time.perf_counter() - t0)

@@ -182,6 +182,29 @@ def test_half_duplex_and_decoding_stay_consistent_after_mid_period_changes() -> 
     assert abs(int(per_vehicle.sum()) - 30 * 60) <= sim.n_reselections and np.all(np.abs(per_vehicle - 30) <= 15)
 
 
+def test_last_links_hold_the_whole_period_when_it_is_cut() -> None:
+    """The env's traffic mode reads ``last_links`` after one period: with per_ue, every chunk of it."""
+    sim = Simulator(
+        apply_overrides(
+            preset("paper"),
+            ["vehicles.n_vehicles=60", "traffic.synchronous=false", "sps.reselection_timing=per_ue"],
+        )
+    )
+    sim.reset(seed=4)
+    cut = 0
+    for _ in range(5):
+        events = sim._next_arrival_event(0, sim.rri) < sim.rri
+        links = sim.run(sim.rri).links
+        assert links is not None and sim.last_links is not None
+        tx, rx, p, cause = sim.last_links
+        np.testing.assert_array_equal(tx, links["tx"])
+        np.testing.assert_array_equal(rx, links["rx"])
+        np.testing.assert_array_equal(p, links["p_success"])
+        np.testing.assert_array_equal(cause, links["cause"])
+        cut += events
+    assert cut >= 3  # most of these periods were cut at an expiry
+
+
 @pytest.mark.parametrize("signalling", ["always", "standard"])
 def test_the_default_is_bit_identical_to_the_code_before_the_switch(signalling: str) -> None:
     """Reference values: the same run on commit 38b49f8 (before sps.reselection_timing)."""
