@@ -113,15 +113,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(summary)
     else:
+        pop = summary.get("population")
+        vehicles = (
+            f"{summary['n_vehicles']} vehicles"
+            if pop is None
+            else f"{pop['n_vehicles_seen']} vehicles ({pop['present_mean']:.1f} present on average)"
+        )
         print(
             f"PRR mean {summary['prr_mean']:.4f} (expected {summary['prr_mean_expected']:.4f}) over "
-            f"{summary['n_vehicles']} vehicles, {summary['n_transmissions']} transmissions, "
-            f"{summary['runtime_s']:.3f} s"
+            f"{vehicles}, {summary['n_transmissions']} transmissions, {summary['runtime_s']:.3f} s"
         )
         print("PRR at " + ", ".join(f"{d} m: {p:.3f}" for d, p in summary["prr_at_m"].items()))
         print("loss causes: " + ", ".join(f"{k} {v:.1%}" for k, v in summary["loss_cause_shares"].items()))
         if args.out:
-            for name in ("links.parquet", "summary.json", "prr_vs_distance.png"):
+            for name in ("links.parquet", "slots.parquet", "summary.json", "prr_vs_distance.png"):
                 if (args.out / name).exists():
                     print(f"wrote {args.out / name}")
     return 0

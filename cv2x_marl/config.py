@@ -266,6 +266,12 @@ class VehiclesConfig(Section):
                 "vehicles.population=open needs vehicles.mobility=sumo or trace (the lane model keeps its vehicles: "
                 "they wrap around the region)"
             )
+        if self.capacity is not None and self.population != "open":
+            raise ConfigError(
+                f"vehicles.capacity={self.capacity} sizes an open population's slots; with "
+                "vehicles.population=fixed the vehicle count is vehicles.n_vehicles (set capacity to null, "
+                "or population to open)"
+            )
 
 
 @dataclass(frozen=True)

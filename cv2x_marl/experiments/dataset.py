@@ -101,6 +101,12 @@ def build_dataset(
         )
     if not cfg.metrics.record_links:
         raise DatasetError("metrics.record_links=false leaves no link samples; set it to true")
+    if aggregate_window_ms and cfg.vehicles.population == "open":
+        raise DatasetError(
+            "--aggregate-window-ms groups link samples by (tx, rx) slot over a window, and with "
+            "vehicles.population=open a slot is reused by different vehicles; use per-packet samples "
+            "(--aggregate-window-ms 0) or vehicles.population=fixed"
+        )
     params = {"runs": runs, "seed": seed, "aggregate_window_ms": aggregate_window_ms}
     with RunFolder(out_dir, "dataset", overwrite=overwrite, parameters=params):
         return _build_dataset(cfg, runs, seed, Path(out_dir), aggregate_window_ms, progress, ray, address)
@@ -141,7 +147,7 @@ def _build_dataset(
 
     t0 = time.perf_counter()
     seeds = derive_seeds(seed, runs)
-    n_vehicles = cfg.n_vehicles
+    n_vehicles = cfg.n_slots  # tx / rx are slot numbers
     if ray:
         from cv2x_marl.parallel import map_on_ray
 

@@ -96,6 +96,55 @@ def simulate(
         return _simulate(cfg, seed, n_subframes, out_dir, progress)
 
 
+class SlotOccupancy:
+    """``vehicles.population=open``: which vehicle held each simulator slot when, read after every
+    reservation period (the moment vehicles enter and leave), as intervals of subframes.
+
+    Rows ``(slot, vehicle_id, first_subframe, end_subframe)``: the vehicle held the slot for the
+    subframes ``[first_subframe, end_subframe)`` of the measured run (subframe 0 is the first one
+    measured); the links table's ``tx`` / ``rx`` are slots, so this table says whose links they are.
+    """
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        self.start = sim.subframe
+        self.rows: list[tuple[int, str, int, int]] = []
+        self._held: dict[int, tuple[str, int]] = {}
+        self.present_counts: list[int] = []
+        self._observe()
+
+    def _observe(self) -> None:
+        ids = self.sim.vehicle_ids or []
+        now = self.sim.subframe - self.start
+        for k, (vid, since) in list(self._held.items()):
+            if ids[k] != vid:
+                self.rows.append((k, vid, since, now))
+                del self._held[k]
+        for k, new in enumerate(ids):
+            if new is not None and k not in self._held:
+                self._held[k] = (new, now)
+        self.present_counts.append(sum(v is not None for v in ids))
+
+    def update(self, done: int) -> None:
+        """The simulator's progress callback: read the slots at each period end."""
+        if self.sim.subframe % self.sim.rri == 0:
+            self._observe()
+
+    def table(self) -> pa.Table:
+        """The intervals, those still open closed at the end of the run."""
+        end = self.sim.subframe - self.start
+        rows = sorted(self.rows + [(k, vid, since, end) for k, (vid, since) in self._held.items()])
+        slot, vid, first, last = zip(*rows, strict=True) if rows else ((), (), (), ())
+        return pa.table(
+            {
+                "slot": pa.array(slot, pa.int64()),
+                "vehicle_id": pa.array(vid, pa.string()),
+                "first_subframe": pa.array(first, pa.int64()),
+                "end_subframe": pa.array(last, pa.int64()),
+            }
+        )
+
+
 def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | None, progress: bool) -> dict[str, Any]:
     from tqdm import tqdm
 
@@ -105,9 +154,16 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
     # the links table streams into links.parquet (bounded memory); without an output it is not kept
     writer = LinksWriter(Path(out_dir) / "links.parquet") if out_dir is not None else None
     sink = writer if writer is not None else (lambda chunk: None)
+    slots = SlotOccupancy(sim) if sim.present is not None else None
     try:
         with tqdm(total=n_subframes, unit="sf", desc="simulate", file=sys.stderr, disable=not progress) as bar:
-            result = sim.run(n_subframes, progress=bar.update, links_sink=sink)
+
+            def tick(done: int) -> None:
+                bar.update(done)
+                if slots is not None:
+                    slots.update(done)
+
+            result = sim.run(n_subframes, progress=tick, links_sink=sink)
     except BaseException:
         if writer is not None:
             writer.abort()
@@ -117,7 +173,8 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
         {
             "seed": seed,
             "n_subframes": n_subframes,
-            "n_vehicles": sim.n,
+            "n_vehicles": cfg.n_vehicles,
+            "n_slots": sim.n,
             "n_reselections": sim.n_reselections,
             "runtime_s": result.runtime_s,
             "total_runtime_s": time.perf_counter() - t0,
@@ -130,8 +187,22 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
             "config": to_dict(cfg),
         }
     )
+    if slots is not None:  # vehicles.population=open
+        counts = np.array(slots.present_counts)
+        occ = slots.table()
+        first, end = occ.column("first_subframe").to_numpy(), occ.column("end_subframe").to_numpy()
+        summary["population"] = {  # over the measured run, read at every period end
+            "present_mean": float(counts.mean()),
+            "present_min": int(counts.min()),
+            "present_max": int(counts.max()),
+            "n_entered": int(np.sum(first > 0)),
+            "n_left": int(np.sum(end < n_subframes)),
+            "n_vehicles_seen": len(set(occ.column("vehicle_id").to_pylist())),
+        }
     if out_dir is not None:
         out_dir = Path(out_dir)
+        if slots is not None:
+            write_parquet(slots.table(), out_dir / "slots.parquet")
         if cfg.metrics.record_links and writer is not None:
             from cv2x_marl.sim.simulator import LINK_COLUMNS
 

@@ -94,10 +94,11 @@ _PASSED: set[tuple[ScenarioConfig, int]] = set()
 
 def uses_sparse_state(cfg: ScenarioConfig) -> bool:
     """Whether the simulator keeps the sparse pair state: ``link.max_range_m`` set and
-    ``link.pair_state`` ``sparse``, or ``auto`` with at least :data:`SPARSE_STATE_MIN_VEHICLES` vehicles."""
+    ``link.pair_state`` ``sparse``, or ``auto`` with at least :data:`SPARSE_STATE_MIN_VEHICLES` vehicle
+    slots (the vehicle count, or ``vehicles.capacity`` with an open population)."""
     if cfg.link.max_range_m is None or cfg.link.pair_state == "dense":
         return False
-    return cfg.link.pair_state == "sparse" or cfg.n_vehicles >= SPARSE_STATE_MIN_VEHICLES
+    return cfg.link.pair_state == "sparse" or cfg.n_slots >= SPARSE_STATE_MIN_VEHICLES
 
 
 def _pairs_in_range(cfg: ScenarioConfig, n: int, length: float) -> float:
@@ -159,15 +160,22 @@ def estimate_memory_bytes(cfg: ScenarioConfig, n_subframes: int | None = None) -
         * ``total``: the peak of the components alive at the same time.
     """
     n_sub = cfg.sim.n_subframes if n_subframes is None else max(0, int(n_subframes))
-    est = _estimate(cfg, cfg.n_vehicles, n_sub, cfg.metrics.record_links, cfg.road.length_m)
+    est = _estimate(cfg, cfg.n_vehicles, n_sub, cfg.metrics.record_links, cfg.road.length_m, cfg.n_slots)
     return {k: math.ceil(v) for k, v in est.items()}
 
 
-def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: float) -> dict[str, float]:
-    """:func:`estimate_memory_bytes` for ``n`` vehicles, ``n_sub`` subframes, links table or not, road length."""
+def _estimate(
+    cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: float, slots: int | None = None
+) -> dict[str, float]:
+    """:func:`estimate_memory_bytes` for ``n`` vehicles, ``n_sub`` subframes, links table or not, road length.
+
+    ``slots`` (None: ``n``): the size of the per-vehicle arrays, ``vehicles.capacity`` with an open
+    population: the dense N x N state and the sensing window are per slot, the pairs and links per
+    vehicle present (``n`` on average)."""
     rri = cfg.traffic.rri_ms
     sps = cfg.sps
-    cells = float(n) * n
+    n_arr = n if slots is None else max(n, slots)
+    cells = float(n_arr) * n_arr
     p_all = n * (n - 1) / 2.0
     p = _pairs_in_range(cfg, n, length)
     links = 2.0 * p  # per period
@@ -178,7 +186,7 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
     record = record and n_sub > 0
     rows = links * math.ceil(n_sub / rri) if record else 0.0
 
-    sparse = cfg.link.max_range_m is not None and n >= SPARSE_STATE_MIN_VEHICLES  # uses_sparse_state for n
+    sparse = cfg.link.max_range_m is not None and n_arr >= SPARSE_STATE_MIN_VEHICLES  # uses_sparse_state for n
     all_pairs = cfg.link.max_range_m is None  # Simulator._all_pairs only without a cut-off
     pair_index = _PAIR_INDEX_PER_PAIR * p_all if all_pairs else 0.0
     pair_index_build = _PAIR_INDEX_BUILD_PER_PAIR * p_all if all_pairs else 0.0
@@ -194,11 +202,11 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
         snapshot_build = _SNAPSHOT_BUILD_PER_PAIR * p
     periods = max(1, sps.sensing_window_ms // rri)
     # in-band emission: flat, the per-(receiver, subframe) sums [N, RRI]; 3gpp, the leakage per (receiver, resource)
-    inband = 8 * n * n_res if cfg.link.inband_emission_model == "3gpp" else 0
-    inband += 8 * n * rri if cfg.link.inband_emission_db is not None else 0
-    sensing = (4 * periods + 16) * n * n_res + inband
+    inband = 8 * n_arr * n_res if cfg.link.inband_emission_model == "3gpp" else 0
+    inband += 8 * n_arr * rri if cfg.link.inband_emission_db is not None else 0
+    sensing = (4 * periods + 16) * n_arr * n_res + inband
     if sps.reselection_timing == "per_ue":  # the previous period's SCI RSRP map, float64 [N, R]
-        sensing += 8 * n * n_res
+        sensing += 8 * n_arr * n_res
     lo, hi = round(sps.counter_min * max(1.0, 100.0 / rri)), round(sps.counter_max * max(1.0, 100.0 / rri))
     reselecting = min(n, math.ceil(4.0 * n / (lo + hi)))  # twice the mean number of expiries per period
     candidates = sps.selection_window_subframes * sps.n_subchannels
@@ -215,7 +223,7 @@ def _estimate(cfg: ScenarioConfig, n: int, n_sub: int, record: bool, length: flo
     co_channel = (per_term if record else _RAYLEIGH_PER_TERM if rayleigh else 0) * terms
     table = LINK_ROW_BYTES * rows
 
-    state = pair_index + shadowing + sensing + _VEHICLE_BYTES * n + last
+    state = pair_index + shadowing + sensing + _VEHICLE_BYTES * n_arr + last
     phases = (
         pair_index_build,  # Simulator.__init__
         pair_index + (shadowing if sparse else _SHADOWING_INIT_PER_CELL * cells),  # reset: Shadowing.__init__
@@ -366,6 +374,12 @@ def _refusal(cfg: ScenarioConfig, est: dict[str, int], n_sub: int, limit: int, s
     else:
         fits = f"about {fit} vehicles fit"
     fixes = [f"{size_keys} ({fits}; the dense N x N state grows as N^2)"]
+    if cfg.vehicles.population == "open":
+        fixes.insert(
+            0,
+            f"lower vehicles.capacity (the {cfg.n_slots} vehicle slots size the dense state and the sensing "
+            "window; the most vehicles present at once is enough)",
+        )
     if record and est["links_table"] + est["co_channel"] > 0.1 * est["total"]:
         without = _estimate(cfg, n, n_sub, False, cfg.road.length_m)["total"]
         fixes.append(

@@ -36,6 +36,10 @@ class PrrAccumulator:
         self.node_decoded = np.zeros(n_vehicles, dtype=np.int64)
         self.node_expected = np.zeros(n_vehicles)
         self.n_transmissions = 0
+        #: ``vehicles.population=open``: per-node sums [3, K] (n, decoded, expected) of the vehicles
+        #: that left during the run (:meth:`retire`), or None when none has
+        self._retired: list[NDArray[np.float64]] = []
+        self.open_population = False
         #: the simulator's SPS state when the measurement started (:meth:`Simulator.sps_state`), or None
         self.sps_state_at_start: dict[str, Any] | None = None
 
@@ -66,10 +70,33 @@ class PrrAccumulator:
         self.node_decoded += np.bincount(tx[target], weights=outcome[target], minlength=n).astype(np.int64)
         self.node_expected += np.bincount(tx[target], weights=p_success[target], minlength=n)
 
+    def retire(self, slots: NDArray[np.int64]) -> None:
+        """``vehicles.population=open``: the vehicles in ``slots`` [K] left (or their slots were given to
+        new vehicles): keep their per-node sums as those of finished vehicles and start the slots
+        afresh, so that a slot's next vehicle is a node of its own."""
+        self.open_population = True
+        if slots.size:
+            self._retired.append(
+                np.stack([self.node_n[slots], self.node_decoded[slots], self.node_expected[slots]]).astype(np.float64)
+            )
+            self.node_n[slots] = 0
+            self.node_decoded[slots] = 0
+            self.node_expected[slots] = 0.0
+
     def node_prr(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """[N] per-node PRR, (sampled, expected); NaN for a node that had no target receiver."""
+        """Per-node PRR, (sampled, expected); NaN for a node that had no target receiver.
+
+        [N] per vehicle slot; with an open population (after :meth:`retire`) one entry per vehicle
+        that transmitted during the run instead: those that left, in the order they left, then
+        those still present, by slot."""
+        n, dec, exp = self.node_n, self.node_decoded, self.node_expected
+        if self.open_population:
+            sent = n > 0
+            sums = np.concatenate([*self._retired, np.stack([n[sent], dec[sent], exp[sent]])], axis=1)
+            sums = sums[:, sums[0] > 0]
+            n, dec, exp = sums[0], sums[1], sums[2]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return self.node_decoded / self.node_n, self.node_expected / self.node_n
+            return dec / n, exp / n
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready metrics: PRR means, PRR vs distance and loss causes per bin."""
@@ -92,8 +119,8 @@ class PrrAccumulator:
         total = self.bin_causes.sum(axis=1)
         lost = max(int(total[1:].sum()), 1)
         return {
-            "prr_mean": float(np.nanmean(sampled)) if np.any(self.node_n) else float("nan"),
-            "prr_mean_expected": float(np.nanmean(expected)) if np.any(self.node_n) else float("nan"),
+            "prr_mean": float(np.nanmean(sampled)) if np.any(np.isfinite(sampled)) else float("nan"),
+            "prr_mean_expected": float(np.nanmean(expected)) if np.any(np.isfinite(expected)) else float("nan"),
             "node_prr": [None if np.isnan(x) else float(x) for x in sampled],
             "prr_vs_distance": prr_vs_distance,
             "loss_causes": loss,

@@ -316,6 +316,8 @@ class Simulator:
             self.initial_resource[~self.present] = False
         self.n_entries = 0
         self.n_departures = 0
+        #: [K] slots whose vehicle left at the last period end (population=open), for the metrics
+        self._vacated = np.empty(0, dtype=np.int64)
         if cfg.sps.reservation_signalling == "standard" and not self._per_ue:  # per_ue: at the arrivals
             self._decide_releases()
         self.subframe = 0
@@ -564,6 +566,8 @@ class Simulator:
             raise ValueError(f"n_subframes must be >= 0, got {n_subframes}")
         cfg = self.config
         acc = PrrAccumulator(self.n, cfg.metrics.prr_bin_m, cfg.metrics.max_distance_m)
+        acc.open_population = self.present is not None  # node metrics per vehicle, not per slot
+        self._vacated = np.empty(0, dtype=np.int64)
         if record:
             acc.sps_state_at_start = self.sps_state()
         keep_links = record and cfg.metrics.record_links
@@ -591,6 +595,9 @@ class Simulator:
             self.subframe += hi - lo
             if hi == self.rri:
                 self._end_period()
+                if record and self._vacated.size:  # population=open: a slot's next vehicle is a new node
+                    acc.retire(self._vacated)
+                    self._vacated = np.empty(0, dtype=np.int64)
             if progress is not None:
                 progress(hi - lo)
         if len(period_links) > 1:  # per_ue cuts periods: last_links holds the last period's part run here
@@ -971,9 +978,11 @@ class Simulator:
         st = self.state
         assert isinstance(st, mobility.TrackedState) and st.present is not None and st.entered is not None
         assert self.present is not None
-        left = self.present & ~st.present
+        # a vehicle left when its slot empties or is handed to a new vehicle in the same step
+        left = self.present & (~st.present | st.entered)
         gone = ~st.present
         self.n_departures += int(left.sum())
+        self._vacated = np.flatnonzero(left)
         self.resource[gone] = -1
         self.counter[gone] = 0
         self._joining[gone] = False

@@ -69,7 +69,7 @@ MAX_FILL_S = 3600.0
 #: file names of a generated (or exported) scenario
 NET_FILE, ROUTE_FILE, CFG_FILE = "net.net.xml", "routes.rou.xml", "scenario.sumocfg"
 #: format version of the generated files (part of every cache key)
-_GENERATOR_VERSION = 3
+_GENERATOR_VERSION = 4
 
 # TraCI variable ids (traci.constants), fixed by the protocol
 _VAR_SPEED, _VAR_POSITION, _VAR_ANGLE = 0x40, 0x42, 0x43
@@ -166,12 +166,13 @@ def import_libsumo() -> Any:
 
 # ------------------------------------------------------------------------------------------- cache
 def cache_dir() -> Path:
-    """Where generated scenarios are cached: ``$CV2X_MARL_SUMO_CACHE``, else the user cache dir."""
+    """Where generated scenarios are cached: ``$CV2X_MARL_SUMO_CACHE``, else the user cache dir; an
+    absolute path (SUMO's tools run in temporary folders and are handed paths into it)."""
     env = os.environ.get(CACHE_ENV)
     if env:
-        return Path(env)
+        return Path(env).resolve()
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "cv2x_marl" / "sumo"
+    return (Path(base) / "cv2x_marl" / "sumo").resolve()
 
 
 def content_key(data: Any) -> str:
@@ -563,8 +564,10 @@ def random_trips_xml(
     horizon_s: float,
     sumo_seed: int,
 ) -> tuple[str, float]:
-    """The open grid's demand: SUMO's ``randomTrips.py`` (origins and destinations uniform over the
-    network's length, routed by ``duarouter``), sized for the resolved vehicle count ``N``.
+    """The open grid's demand: SUMO's ``randomTrips.py`` (origin and destination edges drawn with
+    probability proportional to their length, ``--length``; routed by ``duarouter``), sized for the
+    resolved vehicle count ``N``. A vehicle departs at a free random position of its first edge
+    (``departPos="random_free"``) and leaves the network at the end of its last.
 
     Little's law sizes it: a trip of length ``l`` at desired speed ``v`` lasts ``l / v``, so the
     departure period that keeps ``N`` vehicles in free flow is ``mean(l) * mean(1 / v) / N``; the
@@ -585,7 +588,7 @@ def random_trips_xml(
         run_python_tool(
             "randomTrips.py",
             [*common, "-o", "sample.trips.xml", "-r", "sample.rou.xml", "--seed", str(seeds[0]), "-b", "0",
-             "-e", "1000", "--period", "1"],
+             "-e", "1000", "--period", "1", "--length"],
             cwd=t,
         )  # fmt: skip
         mean_len_m = float(np.mean(_route_lengths_m(t / "sample.rou.xml", net)))
@@ -608,7 +611,7 @@ def _random_trips(
         run_python_tool(
             "randomTrips.py",
             ["-n", str(net_path), "-o", "trips.xml", "-r", "trips.rou.xml", "--seed", str(seed), "-b", "0",
-             "-e", repr(float(horizon_s)), "--period", repr(period_s), "--random-depart"],
+             "-e", repr(float(horizon_s)), "--period", repr(period_s), "--random-depart", "--length"],
             cwd=t,
         )  # fmt: skip
         root = ET.parse(t / "trips.rou.xml").getroot()

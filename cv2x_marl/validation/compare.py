@@ -115,7 +115,13 @@ def simulator_overrides(
             "min_candidate_fraction": 0.2,
             "keep_probability": 0.0,
         },
-        "link": {"model": "per_table", "per_curve": PER_CURVE_OF_FORMAT[fmt], "inband_emission_db": None},
+        # the analytical model has no in-band emission
+        "link": {
+            "model": "per_table",
+            "per_curve": PER_CURVE_OF_FORMAT[fmt],
+            "inband_emission_db": None,
+            "inband_emission_model": "flat",
+        },
         "metrics": {"prr_bin_m": BIN_M, "max_distance_m": MAX_DISTANCE_M, "record_links": False},
         "sim": {"n_subframes": int(n_subframes), "warmup_subframes": 1000, "warmup_mode": "until_reselected"},
     }

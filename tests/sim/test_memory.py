@@ -197,3 +197,19 @@ def test_available_memory() -> None:
     avail = memory.available_memory_bytes()
     assert isinstance(avail, int) and avail > 0
     assert np.isfinite(float(avail))
+
+
+def test_open_population_arrays_are_sized_by_capacity() -> None:
+    """Review of issue 14: with ``vehicles.population=open`` the per-vehicle arrays have
+    ``vehicles.capacity`` slots (the dense shadowing and snapshot state, the sensing window) while
+    the pairs are those of the vehicles present (``n_vehicles`` on average)."""
+    base = ["vehicles.mobility=trace", "vehicles.trace_file=x.xml", "vehicles.population=open"]
+    cfg = apply_overrides(preset("paper"), [*base, "vehicles.capacity=1000", "metrics.record_links=false"])
+    fixed = apply_overrides(preset("paper"), ["metrics.record_links=false"])
+    est, ref = estimate_memory_bytes(cfg), estimate_memory_bytes(fixed)
+    assert est["shadowing"] == 25 * 1000**2  # as test_dense_parts_by_hand, for the 1,000 slots
+    assert est["pair_geometry"] == ref["pair_geometry"]  # the 21 vehicles present
+    assert est["sensing"] > 40 * ref["sensing"]
+    huge = apply_overrides(cfg, ["vehicles.capacity=90000"])
+    with pytest.raises(ConfigError, match=r"lower vehicles\.capacity \(the 90000 vehicle slots"):
+        check_memory(huge, limit_bytes=2 * 2**30)
