@@ -884,11 +884,11 @@ class SumoLockstep:
             ) from exc
         _ACTIVE = self
         if open_population:
-            first_seen = self._step_to_begin()
-            present = _first_seen_order(self._ls.vehicle.getIDList(), first_seen)
-            self.state = self._read_open(present, None)
+            first_seen, present = self._step_until(1)
+            self.state = self._read_open(_first_seen_order(present, first_seen), None)
         else:
-            self.fixed_ids = self._fill()
+            first_seen, present = self._step_until(self.n)
+            self.fixed_ids = _select(present, first_seen, self.n)
             self.slots = list(self.fixed_ids)
             for vid in self.fixed_ids:
                 self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
@@ -899,25 +899,6 @@ class SumoLockstep:
     def ids(self) -> list[str | None]:
         """The vehicle in each slot (vehicle ``i`` of the simulator), None where a slot is empty."""
         return list(self.slots)
-
-    def _step_to_begin(self) -> dict[str, float]:
-        """Open population: step until ``begin_s`` has passed and a vehicle is in the network; the
-        time each vehicle was first seen."""
-        first_seen: dict[str, float] = {}
-        sim = self._ls.simulation
-        while True:
-            self._ls.simulationStep()
-            t = self.time_s
-            for vid in sim.getDepartedIDList():
-                first_seen.setdefault(vid, t)
-            if t >= self.begin_s - 1e-9 and self._ls.vehicle.getIDCount() > 0:
-                return first_seen
-            if sim.getMinExpectedNumber() == 0 or t >= self.begin_s + MAX_FILL_S:
-                self.close()
-                raise SumoError(
-                    f"the SUMO scenario {self.scenario.sumocfg} has no vehicle in the network at or after "
-                    f"vehicles.sumo_begin_s = {self.begin_s:g} s (looked until t = {t:g} s)"
-                )
 
     def _read_open(self, now: Sequence[str], prev: TrackedState | None) -> TrackedState:
         """Open population: slots updated to the vehicles ``now`` present (new ones in slot order),
@@ -940,8 +921,10 @@ class SumoLockstep:
         """SUMO time of the state last read (the FCD ``time`` of the same instant)."""
         return float(self._ls.simulation.getTime()) - self.scenario.step_s
 
-    def _fill(self) -> list[str]:
-        """Step until ``n`` vehicles are in the network; the tracked IDs."""
+    def _step_until(self, need: int) -> tuple[dict[str, float], list[str]]:
+        """Step until ``begin_s`` has passed and at least ``need`` vehicles are in the network (``n``
+        with a fixed population, 1 with an open one); the time each vehicle was first seen and the IDs
+        present."""
         first_seen: dict[str, float] = {}
         sim = self._ls.simulation
         while True:
@@ -949,15 +932,20 @@ class SumoLockstep:
             t = self.time_s
             for vid in sim.getDepartedIDList():
                 first_seen.setdefault(vid, t)
-            present = self._ls.vehicle.getIDList()
-            if len(present) >= self.n and t >= self.begin_s - 1e-9:
-                return _select(present, first_seen, self.n)
+            present = list(self._ls.vehicle.getIDList())
+            if len(present) >= need and t >= self.begin_s - 1e-9:
+                return first_seen, present
             if sim.getMinExpectedNumber() == 0 or t >= self.begin_s + MAX_FILL_S:
-                most = len(present)
                 self.close()
+                where = f"the SUMO scenario {self.scenario.sumocfg}"
+                if self.open_population:
+                    raise SumoError(
+                        f"{where} has no vehicle in the network at or after vehicles.sumo_begin_s = "
+                        f"{self.begin_s:g} s (looked until t = {t:g} s)"
+                    )
                 raise SumoError(
-                    f"the SUMO scenario {self.scenario.sumocfg} never has {self.n} vehicles in the network at once "
-                    f"(by t = {t:g} s it has {most}); lower vehicles.n_vehicles or add demand to the scenario"
+                    f"{where} never has {self.n} vehicles in the network at once (by t = {t:g} s it has "
+                    f"{len(present)}); lower vehicles.n_vehicles or add demand to the scenario"
                 )
 
     def _read(self) -> TrackedState:
