@@ -24,15 +24,6 @@ SEED = 7
 PERIODS = 40
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _cache(tmp_path_factory: pytest.TempPathFactory) -> object:
-    """One SUMO cache for the module, never the user's."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv(sumo.CACHE_ENV, str(tmp_path_factory.mktemp("sumo-cache")))
-    yield
-    mp.undo()
-
-
 def _cfg(*over: str):
     return apply_overrides(preset("sumo-grid"), ["sim.warmup_subframes=0", "sim.n_subframes=4000", *over])
 

@@ -26,15 +26,6 @@ SEED = 3
 SHORT = ["road.length_m=600", "sim.warmup_subframes=0", "metrics.record_links=true"]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _cache(tmp_path_factory: pytest.TempPathFactory) -> object:
-    """One SUMO cache for the module, never the user's."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv(sumo.CACHE_ENV, str(tmp_path_factory.mktemp("sumo-cache")))
-    yield
-    mp.undo()
-
-
 def _cfg(*over: str):
     return apply_overrides(preset("sumo-highway"), [*SHORT, *over])
 

@@ -25,11 +25,6 @@ SEED = 5
 SHORT = ["sim.warmup_subframes=0", "metrics.record_links=true"]
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv(sumo.CACHE_ENV, str(tmp_path / "sumo-cache"))
-
-
 def _cfg(*over: str):
     return apply_overrides(preset("sumo-grid-trips"), [*SHORT, *over])
 
