@@ -396,11 +396,33 @@ class SpsConfig(Section):
         "period on when the resource falls after n (TS 36.321 5.14.1.1, TS 36.213 14.1.1.6; issue 13)",
         choices=("period_end", "per_ue"),
     )
+    sci_decoding: str = _key(
+        "always",
+        "Which SCIs a receiver decodes, and so which reservations its sensing excludes (TS 36.213 14.1.1.6): "
+        "always: every SCI not lost to half duplex or below radio.sensitivity_dbm (the model so far); sinr: the "
+        "standard's behaviour, only a decoded PSCCH counts, decided per receiver by a draw against the PSCCH "
+        "BLER at the link's SINR (same interference as the PSSCH in that subframe) plus sci_sinr_offset_db, "
+        "NIST's ns-3 PSCCH curve (sim/data/nist-pscch-awgn-siso.csv; docs/model.md; issue 13)",
+        choices=("always", "sinr"),
+    )
+    sci_sinr_offset_db: float = _key(
+        0.0,
+        "With sci_decoding=sinr: PSCCH SINR minus the PSSCH link's SINR (power share of the 2 PSCCH RBs, "
+        "receiver gain; 0: the same SINR as the PSSCH)",
+        "dB",
+        -20.0,
+        20.0,
+    )
 
     def _check(self) -> None:
         if self.counter_min > self.counter_max:
             raise ConfigError(
                 f"sps.counter_min ({self.counter_min}) must not exceed sps.counter_max ({self.counter_max})"
+            )
+        if self.sci_decoding == "always" and self.sci_sinr_offset_db != 0.0:
+            raise ConfigError(
+                f"sps.sci_sinr_offset_db ({self.sci_sinr_offset_db:g}) applies to the PSCCH SINR of "
+                "sps.sci_decoding=sinr only: set sps.sci_decoding=sinr or sps.sci_sinr_offset_db=0"
             )
 
 

@@ -711,6 +711,7 @@ def period_link_outcomes(
     threshold_db: float,
     sensitivity_dbm: float,
     releasing: NDArray[np.bool_],
+    sci_ok: NDArray[np.bool_],
     rsrp_offset_db: float,
     period_rsrp_dbm: FloatArray,
     bin_m: float,
@@ -734,7 +735,8 @@ def period_link_outcomes(
     The links whose transmitter is active, in order, from their SINR, SNR and received power (dB,
     from :func:`period_link_powers`): success ``P`` (``model``: per_table linear / log, threshold)
     and ``P0``, outcome ``u < P`` and cause (half duplex, below sensitivity, propagation
-    ``u >= P0``, collision), the SCI RSRP of the sensing (in place, as ``np.maximum.at``), and the
+    ``u >= P0``, collision), the SCI RSRP of the sensing (in place, as ``np.maximum.at``; only the SCIs
+    in ``sci_ok`` with ``sps.sci_decoding=sinr``), and the
     PRR accumulators of :class:`cv2x_marl.sim.metrics.PrrAccumulator` for this chunk. The PER
     interpolation is :func:`_per_success_bisect` (``np.interp``'s formula; ``exp`` is libm's with
     ``log``): tested equal to the numpy path (outcomes, causes, P to 1e-12).
@@ -742,6 +744,8 @@ def period_link_outcomes(
     Args:
         rx, tx, distance_m: [L_all] the period's ordered pairs and their distance (m).
         active, resource, slot, releasing: [N] per vehicle.
+        sci_ok: [L] whether each active link's receiver decoded the SCI (``sps.sci_decoding=sinr``,
+            TS 36.213 14.1.1.6); empty: every SCI not lost to half duplex or sensitivity (``always``).
         n_res: resources per period.
         sinr_db, snr_db, rx_dbm: [L] of the active links.
         u: [L] the uniforms of the active links.
@@ -772,6 +776,7 @@ def period_link_outcomes(
     node_dec = np.zeros(n, dtype=np.int64)
     node_exp = np.zeros(n)
     log_domain = model == MODEL_PER_TABLE_LOG
+    every_sci = sci_ok.shape[0] == 0
     m = 0
     for k in range(rx.shape[0]):
         t = tx[k]
@@ -804,7 +809,7 @@ def period_link_outcomes(
             c = 2
         if hd:
             c = 1
-        if not fail and not releasing[t]:
+        if not fail and not releasing[t] and (every_sci or sci_ok[m]):
             v = rx_dbm[m] - rsrp_offset_db
             if v > period_rsrp_dbm[key]:
                 period_rsrp_dbm[key] = v

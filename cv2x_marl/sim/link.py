@@ -14,6 +14,10 @@ Three models, all vectorised over links:
   undergo independent Rayleigh fading around their mean powers ``S`` and ``I_c``:
   ``P = exp(-theta N / S) prod_c 1 / (1 + theta I_c / S)``.
 * ``threshold``: ``P = 1[SINR >= theta]``.
+
+The SCI (PSCCH) has its own curve (:class:`PscchCurve`, ``sps.sci_decoding=sinr``): the probability
+that a receiver decodes the SCI, and hence learns the reservation the sensing of TS 36.213 14.1.1.6
+uses, from the PSCCH SINR.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from cv2x_marl.sim import kernels
 FloatArray = NDArray[np.float64]
 
 PER_CURVES: tuple[str, ...] = ("r1-160284-190b-r0.5", "r1-160284-190b-r0.7")
+#: the shipped PSCCH (SCI) BLER curve (``cv2x_marl/sim/data/<name>.csv``, source in its header)
+PSCCH_CURVE = "nist-pscch-awgn-siso"
 #: ways of interpolating a PER table between its points (``link.per_interpolation``)
 PER_INTERPOLATIONS: tuple[str, ...] = ("linear", "log")
 
@@ -89,6 +95,54 @@ def load_per_curve(name: str, interpolation: str = "linear") -> PerCurve:
     if np.any(table[:, 1] <= 0.0) or np.any(table[:, 1] > 1.0):
         raise ValueError(f"PER curve {name}: PER values must lie in (0, 1] (log interpolation needs PER > 0)")
     return PerCurve(name, table[:, 0].copy(), table[:, 1].copy(), source, interpolation)
+
+
+@dataclass(frozen=True)
+class PscchCurve:
+    """The PSCCH (SCI) BLER as a function of SINR: ``sinr_db`` ascending [K], ``bler`` [K] in [0, 1].
+
+    Interpolated as its source does (NIST's ns-3 sidelink error model, ``GetBlerValue``): BLER linear
+    in the *linear* SINR between points, 1 below the first point and the last value (0 for the
+    shipped curve) above the last one.
+    """
+
+    name: str
+    sinr_db: FloatArray
+    bler: FloatArray
+    source: str
+
+    def decoding_probability(self, sinr_db: ArrayLike) -> FloatArray:
+        """``1 - BLER`` at ``sinr_db`` (any shape, dB): the probability that the SCI is decoded.
+
+        Args:
+            sinr_db: the PSCCH SINR, dB (``-inf`` and NaN decode with probability 0).
+
+        Returns:
+            Probabilities in [0, 1], the shape of ``sinr_db``.
+        """
+        x = np.asarray(sinr_db, dtype=np.float64)
+        with np.errstate(over="ignore"):
+            lin = np.power(10.0, x / 10.0)
+        bler = np.interp(lin, np.power(10.0, self.sinr_db / 10.0), self.bler, left=1.0, right=float(self.bler[-1]))
+        return np.where(np.isnan(x), 0.0, 1.0 - bler)
+
+
+@functools.cache
+def load_pscch_curve(name: str = PSCCH_CURVE) -> PscchCurve:
+    """Read the shipped PSCCH BLER curve (file ``cv2x_marl/sim/data/<name>.csv``, columns
+    ``sinr_db, bler``; its ``# source:`` header line names where the values come from)."""
+    if name != PSCCH_CURVE:
+        raise ValueError(f"unknown PSCCH curve {name!r}; available: {PSCCH_CURVE}")
+    text = resources.files("cv2x_marl.sim").joinpath("data", f"{name}.csv").read_text()
+    comments = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("#")]
+    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")][1:]
+    table = np.array([[float(v) for v in ln.split(",")] for ln in rows])
+    source = next((c.split(":", 1)[1].strip() for c in comments if c.startswith("source:")), "")
+    if np.any(np.diff(table[:, 0]) <= 0):
+        raise ValueError(f"PSCCH curve {name}: SINR points must increase")
+    if np.any(table[:, 1] < 0.0) or np.any(table[:, 1] > 1.0) or np.any(np.diff(table[:, 1]) > 0):
+        raise ValueError(f"PSCCH curve {name}: BLER values must lie in [0, 1] and not increase with SINR")
+    return PscchCurve(name, table[:, 0].copy(), table[:, 1].copy(), source)
 
 
 def rayleigh_success(

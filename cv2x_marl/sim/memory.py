@@ -67,6 +67,7 @@ _PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the perio
 # _chunk_compiled (sparse state, no links table, no Rayleigh, no in-band emission): SINR, SNR, power in dB,
 # uniforms, and the log10 temporaries (the outcome arrays are last_links)
 _COMPILED_PERIOD_PER_LINK = 84  # (set so the estimate is 1.0-1.05x of 5,000 and 10,000-vehicle runs)
+_SCI_DECODING_PER_LINK = 33  # sps.sci_decoding=sinr: uniforms, SINR + offset, linear SINR, P (8 B), decoded (1 B)
 _LAST_LINKS_PER_LINK = 25  # Simulator.last_links: tx, rx, p (8 B) and cause (1 B) of the last chunk
 _CO_CHANNEL_PER_TERM = 66  # _co_channel_terms + NSV/interferer distance of the links table (measured 60-66)
 _CO_CHANNEL_GRID_WRAP_PER_TERM = 110  # ... with minimum-image displacements on both axes (measured 108)
@@ -214,6 +215,8 @@ def _estimate(
     geometry = _GEOMETRY_PER_PAIR * p
     compiled = sparse and not record and not rayleigh and not cfg.link.has_inband_emission  # as Simulator._chunk
     period = (_COMPILED_PERIOD_PER_LINK if compiled else _PERIOD_PER_LINK) * links
+    if sps.sci_decoding == "sinr":  # the SCI draws, the PSCCH SINR and decoding probability (8 B), decoded (1 B)
+        period += _SCI_DECODING_PER_LINK * links
     last = _LAST_LINKS_PER_LINK * links
     if rayleigh:
         # mean-power lookup: dense N x N, or (sparse) a search of the pairs per co-channel term; fading gains

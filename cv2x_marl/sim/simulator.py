@@ -21,6 +21,11 @@ a's subframe and subchannel, plus optionally in-band emission from the other sub
 subframe (``link.inband_emission_model``: a flat ``link.inband_emission_db``, or the 3GPP mask of
 :mod:`cv2x_marl.sim.inband`, weighted by the subchannel offset, which the S-RSSI sensing then
 sees too); b receives nothing in a subframe where it transmits (half duplex).
+
+Sensing records the PSSCH-RSRP of every SCI a receiver decodes (TS 36.213 14.1.1.6). Which SCIs it
+decodes (``sps.sci_decoding``): ``always``, every one not lost to half duplex or below the
+sensitivity; ``sinr``, a draw per link against the PSCCH BLER at the link's SINR
+(:class:`cv2x_marl.sim.link.PscchCurve`), from a stream of its own (:func:`sci_stream`).
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
-from cv2x_marl.rng import RngStreams
+from cv2x_marl.rng import STREAM_NAMES, RngStreams
 from cv2x_marl.sim import channel, inband, kernels, link, mobility, sps
 from cv2x_marl.sim.memory import check_memory, uses_sparse_state
 from cv2x_marl.sim.metrics import CAUSE_CODE, PrrAccumulator
@@ -202,6 +207,18 @@ def _nan_mean_first_axis(x: NDArray[np.float32]) -> NDArray[np.float32]:
         return np.asarray(total / valid.sum(axis=0), dtype=np.float32)
 
 
+def sci_stream(seed: int) -> np.random.Generator:
+    """The random stream of the SCI decoding draws (``sps.sci_decoding=sinr``) for a root ``seed``.
+
+    It is the child ``SeedSequence`` that follows the named streams of :class:`cv2x_marl.rng.RngStreams`
+    (spawn key ``len(STREAM_NAMES)``): independent of them, so the SCI draws move no other draw (the
+    PSSCH outcomes, the SPS choices, the mobility), and equal to the stream an eighth name appended to
+    ``STREAM_NAMES`` would give.
+    """
+    child = np.random.SeedSequence(int(seed)).spawn(len(STREAM_NAMES) + 1)[-1]
+    return np.random.default_rng(child)
+
+
 @dataclass
 class _Geometry:
     """Per-period pair quantities. Ordered pairs are (rx, tx); the first half is (i, j), i < j."""
@@ -258,6 +275,10 @@ class Simulator:
         self._sensing_periods = max(1, config.sps.sensing_window_ms // self.rri)
         #: sps.reselection_timing=per_ue: counters and reselections at each UE's packet arrival
         self._per_ue = config.sps.reselection_timing == "per_ue"
+        #: sps.sci_decoding=sinr: the PSCCH BLER curve that decides which SCIs a receiver decodes (None: all)
+        self.pscch_curve: link.PscchCurve | None = None
+        if config.sps.sci_decoding == "sinr":
+            self.pscch_curve = link.load_pscch_curve()
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
         #: the compiled period (_chunk_compiled) where it applies: with the sparse state
@@ -278,6 +299,8 @@ class Simulator:
         """Place the vehicles, draw initial resources, run the warm-up; return the snapshot."""
         cfg = self.config
         self.rng = RngStreams.from_seed(seed)
+        #: the SCI decoding draws (sps.sci_decoding=sinr), a stream of its own
+        self._sci_rng = sci_stream(seed) if self.pscch_curve is not None else None
         self._ready = False  # until this reset completes (starting SUMO can fail)
         self.close()
         self.state: mobility.MobilityState
@@ -684,6 +707,8 @@ class Simulator:
         if leak_mw is not None:  # 3gpp: S-RSSI is the energy in the subchannel, leakage included (as WiLabV2Xsim)
             self._period_rssi += leak_mw
         sci = ~fail & ~self._releasing[tx]  # a UE's last SCI before reselecting reserves nothing (standard)
+        if self.pscch_curve is not None:  # sps.sci_decoding=sinr: only a decoded PSCCH reserves
+            sci &= self._sci_decoded(sinr_db)
         np.maximum.at(self._period_rsrp, key[sci], rx_dbm[sci] - self._rsrp_offset_db)
 
         if acc is not None:
@@ -718,7 +743,9 @@ class Simulator:
         """:meth:`_chunk` in compiled passes over the period's pairs (the sparse state, no links table,
         ``link.model`` per_table or threshold, no in-band emission of either model): the same draws, the same sums in
         the same order and numpy's ``log10``; the PER interpolation compiled (``np.interp``'s formula),
-        tested equal to the numpy path (``tests/sim/test_scale.py``)."""
+        tested equal to the numpy path (``tests/sim/test_scale.py``). With ``sps.sci_decoding=sinr`` the
+        SCI draws and the PSCCH BLER are taken here, as in :meth:`_chunk`, and the kernel records only the
+        decoded SCIs (tested equal, ``tests/sim/test_sci_decoding.py``)."""
         cfg = self.config
         total, n_links = kernels.period_power_sums(geo.rx, geo.tx, geo.rx_mw, active, self.resource, self.n_res, self.n)
         s_mw, ratio = kernels.period_link_powers(
@@ -729,6 +756,8 @@ class Simulator:
         rx_dbm = 10.0 * np.log10(s_mw)
         del s_mw, ratio
         u = self.rng.link.random(n_links)
+        # sps.sci_decoding=sinr: which SCIs are decoded, drawn as in _chunk; empty: every SCI (always)
+        sci_ok = self._sci_decoded(sinr_db) if self.pscch_curve is not None else np.empty(0, dtype=bool)
         model = cfg.link.model
         code = kernels.MODEL_THRESHOLD if model == "threshold" else self.curve.kernel_model
         sens = cfg.radio.sensitivity_dbm
@@ -752,6 +781,7 @@ class Simulator:
                 float(cfg.link.sinr_threshold_db),
                 -np.inf if sens is None else float(sens),
                 self._releasing,
+                sci_ok,
                 float(self._rsrp_offset_db),
                 self._period_rsrp,
                 acc.bin_m if acc is not None else 1.0,
@@ -763,6 +793,26 @@ class Simulator:
         self._period_rssi += total
         if acc is not None:
             acc.add_counts(int(active.sum()), bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp)
+
+    def _sci_decoded(self, sinr_db: FloatArray) -> NDArray[np.bool_]:
+        """``sps.sci_decoding=sinr``: whether each link's receiver decodes the transmitter's SCI.
+
+        The PSCCH (2 RBs of the subchannel next to the PSSCH in the same subframe, TS 36.211 9.4, pools
+        with ``adjacencyPSCCH-PSSCH-r14`` of TS 36.331) is taken to see the link's SINR plus
+        ``sps.sci_sinr_offset_db``: the same co-channel transmitters (their PSCCHs lie in the same
+        RBs), in-band emission and noise per unit bandwidth as the PSSCH (docs/model.md, SCI
+        decoding). Decoded iff ``u < 1 - BLER(SINR + offset)`` (:class:`cv2x_marl.sim.link.PscchCurve`),
+        one uniform per link from :func:`sci_stream`, independent of the PSSCH outcome's uniform.
+
+        Args:
+            sinr_db: [L] the PSSCH SINR of the chunk's links, in link order (dB).
+
+        Returns:
+            [L] bool, decoded.
+        """
+        assert self.pscch_curve is not None and self._sci_rng is not None
+        u = self._sci_rng.random(sinr_db.shape[0])
+        return u < self.pscch_curve.decoding_probability(sinr_db + self.config.sps.sci_sinr_offset_db)
 
     def _co_channel_terms(self, tx: IntArray, rx: IntArray, active: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
         """For every link, the other transmitters on its resource (one row per (link, interferer)).
