@@ -654,6 +654,23 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "vehicles": {"mobility": "sumo", "population": "open"},
     },
 }
+# The highway preset with every standard procedure the simulator otherwise simplifies (issue 13;
+# docs/model.md, "Fidelity switches"): TS 36.321 5.14.1.1 reservation signalling and per-UE
+# reselection timing, sensing-based start, decoded SCIs only, log-domain PER interpolation, the
+# TS 36.101 in-band emission mask, pair-geometry shadowing decorrelation. Slower than "highway"
+# (numpy period only; per-UE timing splits periods).
+PRESETS["highway-3gpp"] = {
+    **{k: dict(v) for k, v in PRESETS["highway"].items()},
+    "sps": {
+        **PRESETS["highway"]["sps"],
+        "reservation_signalling": "standard",
+        "reselection_timing": "per_ue",
+        "sci_decoding": "sinr",
+    },
+    "link": {**PRESETS["highway"]["link"], "per_interpolation": "log", "inband_emission_model": "3gpp"},
+    "channel": {**PRESETS["highway"]["channel"], "shadowing_correlation": "pair_distance"},
+    "sim": {**PRESETS["highway"]["sim"], "warmup_mode": "until_reselected"},
+}
 PRESETS["sumo-highway"] = {
     **{k: dict(v) for k, v in PRESETS["highway"].items()},
     "vehicles": {**PRESETS["highway"]["vehicles"], "mobility": "sumo", "population": "open"},
@@ -691,7 +708,8 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset (``paper``, ``highway``, ``sumo-grid``, ``sumo-highway`` or ``sumo-grid-trips``)."""
+    """A named preset (``paper``, ``highway``, ``highway-3gpp``, ``sumo-grid``, ``sumo-highway`` or
+    ``sumo-grid-trips``)."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     return from_dict(PRESETS[name])

@@ -67,6 +67,22 @@ def test_highway_preset_density() -> None:
     assert cfg.n_vehicles == 200  # 0.1 veh/m on 2 km
 
 
+def test_highway_3gpp_preset_is_highway_with_every_standard_switch() -> None:
+    """``highway-3gpp`` differs from ``highway`` exactly in the fidelity switches of issue 13, each at
+    the standard's value (docs/model.md)."""
+    std, base = to_dict(preset("highway-3gpp")), to_dict(preset("highway"))
+    differs = {(sec, k): v for sec, keys in std.items() for k, v in keys.items() if base[sec][k] != v}
+    assert differs == {
+        ("sps", "reservation_signalling"): "standard",
+        ("sps", "reselection_timing"): "per_ue",
+        ("sps", "sci_decoding"): "sinr",
+        ("link", "per_interpolation"): "log",
+        ("link", "inband_emission_model"): "3gpp",
+        ("channel", "shadowing_correlation"): "pair_distance",
+        ("sim", "warmup_mode"): "until_reselected",
+    }
+
+
 @pytest.mark.parametrize(
     ("override", "culprit", "allowed"),
     [
