@@ -217,7 +217,8 @@ def _estimate(
     period = (_COMPILED_PERIOD_PER_LINK if compiled else _PERIOD_PER_LINK) * links
     if sps.sci_decoding == "sinr":  # the SCI draws, the PSCCH SINR and decoding probability (8 B), decoded (1 B)
         period += _SCI_DECODING_PER_LINK * links
-    last = _LAST_LINKS_PER_LINK * links
+    # per_ue cuts periods: the parts of the last period are kept, then concatenated (two copies at once)
+    last = _LAST_LINKS_PER_LINK * links * (2 if sps.reselection_timing == "per_ue" else 1)
     if rayleigh:
         # mean-power lookup: dense N x N, or (sparse) a search of the pairs per co-channel term; fading gains
         period += (40 * terms if sparse else 8 * cells) + 32 * links

@@ -913,9 +913,11 @@ class Simulator:
 
         A candidate in slot ``s`` is reserved by an SCI heard ``RRI`` subframes before it (TS 36.213
         14.1.1.6 step 6 with one RRI): for ``s < at_slot`` that SCI was heard earlier in this period,
-        for ``s >= at_slot`` in the previous one. The S-RSSI of slot ``s`` averages the periods whose
-        slot ``s`` lies in the window: this period and the 9 before it for ``s < at_slot``, the 10 before
-        it otherwise (at RRI 100). A vehicle does not monitor its own transmission (NaN).
+        for ``s > at_slot`` in the previous one; for ``s == at_slot`` (subframe n + RRI, in the window
+        when T2 = RRI) it would be sent at n itself, outside the sensing window: nothing excludes it.
+        The S-RSSI of slot ``s`` averages the periods whose slot ``s`` lies in the window: this period
+        and the 9 before it for ``s < at_slot``, the 10 before it otherwise (at RRI 100). A vehicle
+        does not monitor its own transmission (NaN).
 
         Returns:
             ``rsrp`` [V, M] (dBm, ``-inf``: none heard) and the window-average S-RSSI [V, M] (mW, NaN:
@@ -923,10 +925,13 @@ class Simulator:
         """
         n, r = self.n, self.n_res
         rows = vehicles[:, None]
-        earlier = cand // self.n_sub < at_slot  # heard in this period, before the arrival
+        slot = cand // self.n_sub
+        earlier = slot < at_slot  # heard in this period, before the arrival
         cur = self._period_rsrp.reshape(n, r)[rows, cand]
         prev = self._prev_rsrp.reshape(n, r)[rows, cand]
-        rsrp = np.where(earlier, cur, prev)
+        # the arrival slot itself (subframe n + RRI, when T2 = RRI): the SCI reserving it would be sent at
+        # n, outside the window [n - 1000, n - 1]; the one heard at n - RRI reserves n only
+        rsrp = np.where(slot == at_slot, -np.inf, np.where(earlier, cur, prev))
         ring = self._rssi_ring[:, rows, cand]  # [P, V, M] (a copy: fancy indexing)
         now = (self._period_rssi.reshape(n, r)[rows, cand] + self.noise_mw).astype(np.float32)
         now[cand // self.n_sub == self.slot[vehicles][:, None]] = np.nan  # its own transmission this period

@@ -197,6 +197,36 @@ def test_sinr_of_a_hand_built_scene_matches_an_independent_construction() -> Non
     assert np.isnan(rssi[7 * 2 : 7 * 2 + 2]).all()  # its own subframe: not monitored
 
 
+def test_the_simulator_weights_leakage_by_victim_row_on_an_asymmetric_pool() -> None:
+    """Five subchannels of 10 RB (50 RB): the carrier-leakage RBs lie in subchannel 2, so M[2, 0] and
+    M[0, 2] differ (-27.34 vs -28.15 dB) and a transposed matrix would be caught (review of issue 13)."""
+    cfg = apply_overrides(preset("paper"), [*SCENE, "sps.n_subchannels=5"])
+    sim = Simulator(cfg)
+    sim.reset(seed=3, warmup_subframes=0)
+    # 0 on subchannel 0 and 1 on subchannel 2 of slot 3; 2 and 3 receive from slot 7 / 9
+    sim.resource = np.array([3 * 5 + 0, 3 * 5 + 2, 9 * 5 + 4, 7 * 5 + 0])
+    sim.set_offsets(POSITIONS_M - mobility.positions_m(sim.road, sim.state))
+    links = sim.run(cfg.traffic.rri_ms).links
+    assert links is not None
+    eirp = cfg.radio.tx_power_dbm + cfg.radio.tx_antenna_gain_dbi + cfg.radio.rx_antenna_gain_dbi
+    lam = 299_792_458.0 / cfg.radio.carrier_hz
+    d = np.hypot(*(POSITIONS_M[:, None, :] - POSITIONS_M[None, :, :]).transpose(2, 0, 1))
+    with np.errstate(divide="ignore"):
+        p_mw = 10.0 ** ((eirp + 20.0 * np.log10(lam / (4 * np.pi)) - 20.0 * np.log10(d)) / 10.0)
+    noise_mw = 10.0 ** ((cfg.radio.noise_dbm + cfg.radio.noise_figure_db) / 10.0)
+    p_rb = cfg.radio.tx_power_dbm - 10.0 * math.log10(10)
+    m20, m02 = _hand_leakage(2, 0, 50, 10, p_rb), _hand_leakage(0, 2, 50, 10, p_rb)
+    assert m20 > m02
+    for rx in (2, 3):
+        k0 = int(np.flatnonzero((links["tx"] == 0) & (links["rx"] == rx))[0])
+        k1 = int(np.flatnonzero((links["tx"] == 1) & (links["rx"] == rx))[0])
+        # 0's packet on subchannel 0 hears 1's leakage into subchannel 0: M[0, 2]; and the other way round
+        sinr0 = 10.0 * np.log10(p_mw[0, rx] / (m02 * p_mw[1, rx] + noise_mw))
+        sinr1 = 10.0 * np.log10(p_mw[1, rx] / (m20 * p_mw[0, rx] + noise_mw))
+        assert links["sinr_db"][k0] == pytest.approx(sinr0, abs=1e-9)
+        assert links["sinr_db"][k1] == pytest.approx(sinr1, abs=1e-9)
+
+
 def test_the_flat_model_leaves_sensing_co_channel() -> None:
     sim, (_snap, links) = _scene(["link.inband_emission_model=flat", "link.inband_emission_db=-20"])
     rssi = sim._rssi_ring[0, 3].astype(np.float64)

@@ -40,7 +40,10 @@ def _expected_choice(vehicle: int, state: dict, cfg: ScenarioConfig) -> int:
     rsrp, rssi = [], []
     for r in cand:
         s = r // n_sub
-        heard = state["cur_rsrp"][vehicle, r] if s < ARRIVAL else state["prev_rsrp"][vehicle, r]
+        if s == ARRIVAL:  # n + RRI: its reserving SCI would be sent at n, outside [n - 1000, n - 1]
+            heard = -math.inf
+        else:
+            heard = state["cur_rsrp"][vehicle, r] if s < ARRIVAL else state["prev_rsrp"][vehicle, r]
         rsrp.append(math.inf if s == own_slot else heard)
         # periods whose slot s lies in [n - 1000, n - 1]: this one and 9 before for s < n, else the 10 before
         values = []
@@ -123,6 +126,41 @@ def test_a_ue_selects_at_its_own_arrival_on_the_1000_ms_before_it() -> None:
     assert np.isnan(ring_w[60]).all() and not np.isnan(ring_w[[40, 6, 96]]).any()
 
 
+def test_the_arrival_slot_one_period_on_is_never_excluded() -> None:
+    """With T2 = RRI (W = 100) the candidates include slot n + RRI itself; the SCI heard at n - RRI on
+    that resource reserved n, not n + RRI, and the one that would reserve n + RRI comes at n, outside
+    the sensing window: TS 36.213 14.1.1.6 excludes nothing there (review of issue 13)."""
+    sim = _prepared(["sps.selection_window_subframes=100"])
+    cfg, n, r = sim.config, sim.n, sim.n_res
+    r_g, r_next = ARRIVAL * 2 + 0, (ARRIVAL + 1) * 2 + 0  # slot n + RRI, and slot n + 1
+    sim.counter[:] = 50
+    sim.counter[V] = 0
+    sim.generation_slot[V] = ARRIVAL
+    sim.resource[V] = 40 * 2
+    sim.resource[np.isin(sim.resource, [r_g, r_next]) & (np.arange(n) != V)] = 50 * 2 + 1
+    sim._prev_rsrp.reshape(n, r)[V, r_g] = -60.0  # heard at n - RRI: reserved n, which is now
+    sim._rssi_ring[:, V, r_g], sim._rssi_ring[:, V, r_next] = 1e-15, 2e-15  # r_g the quietest
+    state: dict = {}
+    arrivals = sim._arrivals
+
+    def spy(lo: int, hi: int) -> None:
+        if hi - 1 == ARRIVAL:
+            state.update(
+                cur_rsrp=sim._period_rsrp.reshape(n, r).copy(),
+                prev_rsrp=sim._prev_rsrp.reshape(n, r).copy(),
+                cur_rssi=sim._period_rssi.reshape(n, r).copy(),
+                ring=sim._rssi_ring.copy(),
+                oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
+                resource=sim.resource.copy(),
+                noise=sim.noise_mw,
+            )
+        arrivals(lo, hi)
+
+    sim._arrivals = spy  # type: ignore[method-assign]
+    sim.run(sim.rri)
+    assert state and sim.resource[V] == _expected_choice(V, state, cfg) == r_g
+
+
 def test_the_same_ues_at_the_period_end_select_on_the_last_period_only() -> None:
     """period_end: the SCI heard on R_X a period ago excludes it, the one heard this period on R_CUR
     too (the whole period is the last period's map); the selection window still follows slot 90."""
@@ -177,9 +215,13 @@ def test_half_duplex_and_decoding_stay_consistent_after_mid_period_changes() -> 
     busy = np.array([(b, s) in tx_sf for b, s in zip(links["rx"].tolist(), links["subframe"].tolist(), strict=True)])
     assert busy.sum() > 0 and np.all(links["cause"][busy] == CAUSE_CODE["half_duplex"])
     assert not np.any(links["cause"][~busy] == CAUSE_CODE["half_duplex"])
-    # one transmission per packet: 30 periods x 60 vehicles, give or take the reselection periods
-    per_vehicle = np.array([len({s for t, s in tx_sf if t == i}) for i in range(60)])
-    assert abs(int(per_vehicle.sum()) - 30 * 60) <= sim.n_reselections and np.all(np.abs(per_vehicle - 30) <= 15)
+    # one transmission per packet: a packet arrives at subframe g + k RRI and goes out within the next
+    # RRI, so the packet index (t - 1 - g) // RRI of each UE's transmissions steps by exactly one
+    g0 = sim.generation_slot
+    for i in range(60):
+        t = np.array(sorted({s for tx, s in tx_sf if tx == i}))
+        k = (t - 1 - int(g0[i])) // sim.rri
+        assert t.size >= 25 and np.all(np.diff(k) == 1), (i, t, k)
 
 
 def test_last_links_hold_the_whole_period_when_it_is_cut() -> None:
@@ -259,3 +301,27 @@ def test_per_ue_with_an_open_population(tmp_path: Path, monkeypatch: pytest.Monk
         assert not np.any(links["cause"][~busy] == CAUSE_CODE["half_duplex"])
     finally:
         sim.close()
+
+
+def test_the_compiled_sparse_period_equals_the_numpy_period_with_per_ue() -> None:
+    """per_ue cuts periods into chunks; the compiled period runs them as the numpy one does."""
+    over = [
+        "sim.warmup_subframes=300",
+        "link.pair_state=sparse",
+        "metrics.record_links=false",
+        "sps.reselection_timing=per_ue",
+        "sps.reservation_signalling=standard",
+    ]
+    runs = []
+    for compiled in (True, False):
+        sim = Simulator(apply_overrides(preset("highway"), over))
+        assert sim.compiled_period
+        sim.compiled_period = compiled
+        sim.reset(seed=5)
+        result = sim.run(650)
+        runs.append((result.metrics.summary(), sim.n_reselections, sim.resource.copy(), sim))
+    (m1, n1, r1, s1), (m2, n2, r2, s2) = runs
+    assert n1 == n2 > 0 and m1["prr_mean"] == m2["prr_mean"] and m1["n_link_samples"] == m2["n_link_samples"]
+    np.testing.assert_array_equal(r1, r2)
+    np.testing.assert_array_equal(s1._period_rsrp, s2._period_rsrp)
+    np.testing.assert_array_equal(s1._rssi_ring, s2._rssi_ring)
