@@ -72,6 +72,20 @@ class PerCurve:
         return kernels.MODEL_PER_TABLE_LOG if self.interpolation == "log" else kernels.MODEL_PER_TABLE
 
 
+def _read_curve(name: str, what: str) -> tuple[FloatArray, str]:
+    """A curve of package data (``cv2x_marl/sim/data/<name>.csv``: ``#`` comment lines, one of them
+    ``# source: ...``, a header row, then ``sinr_db, value`` rows): the [K, 2] table, SINR strictly
+    increasing, and its source line."""
+    text = resources.files("cv2x_marl.sim").joinpath("data", f"{name}.csv").read_text()
+    comments = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("#")]
+    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")][1:]
+    table = np.array([[float(v) for v in ln.split(",")] for ln in rows])
+    source = next((c.split(":", 1)[1].strip() for c in comments if c.startswith("source:")), "")
+    if np.any(np.diff(table[:, 0]) <= 0):
+        raise ValueError(f"{what} curve {name}: SINR points must increase")
+    return table, source
+
+
 @functools.cache
 def load_per_curve(name: str, interpolation: str = "linear") -> PerCurve:
     """Read a shipped PER curve by name (see :data:`PER_CURVES`).
@@ -85,13 +99,7 @@ def load_per_curve(name: str, interpolation: str = "linear") -> PerCurve:
         raise ValueError(f"unknown PER curve {name!r}; available: {', '.join(PER_CURVES)}")
     if interpolation not in PER_INTERPOLATIONS:
         raise ValueError(f"unknown PER interpolation {interpolation!r}; available: {', '.join(PER_INTERPOLATIONS)}")
-    text = resources.files("cv2x_marl.sim").joinpath("data", f"{name}.csv").read_text()
-    comments = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("#")]
-    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")][1:]
-    table = np.array([[float(v) for v in ln.split(",")] for ln in rows])
-    source = next((c.split(":", 1)[1].strip() for c in comments if c.startswith("source:")), "")
-    if np.any(np.diff(table[:, 0]) <= 0):
-        raise ValueError(f"PER curve {name}: SINR points must increase")
+    table, source = _read_curve(name, "PER")
     if np.any(table[:, 1] <= 0.0) or np.any(table[:, 1] > 1.0):
         raise ValueError(f"PER curve {name}: PER values must lie in (0, 1] (log interpolation needs PER > 0)")
     return PerCurve(name, table[:, 0].copy(), table[:, 1].copy(), source, interpolation)
@@ -133,13 +141,7 @@ def load_pscch_curve(name: str = PSCCH_CURVE) -> PscchCurve:
     ``sinr_db, bler``; its ``# source:`` header line names where the values come from)."""
     if name != PSCCH_CURVE:
         raise ValueError(f"unknown PSCCH curve {name!r}; available: {PSCCH_CURVE}")
-    text = resources.files("cv2x_marl.sim").joinpath("data", f"{name}.csv").read_text()
-    comments = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("#")]
-    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")][1:]
-    table = np.array([[float(v) for v in ln.split(",")] for ln in rows])
-    source = next((c.split(":", 1)[1].strip() for c in comments if c.startswith("source:")), "")
-    if np.any(np.diff(table[:, 0]) <= 0):
-        raise ValueError(f"PSCCH curve {name}: SINR points must increase")
+    table, source = _read_curve(name, "PSCCH")
     if np.any(table[:, 1] < 0.0) or np.any(table[:, 1] > 1.0) or np.any(np.diff(table[:, 1]) > 0):
         raise ValueError(f"PSCCH curve {name}: BLER values must lie in [0, 1] and not increase with SINR")
     return PscchCurve(name, table[:, 0].copy(), table[:, 1].copy(), source)

@@ -1228,12 +1228,7 @@ class TraceReplay:
     def _open_values(self, t: float) -> tuple[list[str], dict[str, tuple[float, float, float, float]]]:
         """The vehicles in the trace at ``t`` and their interpolated (x, y, vx, vy)."""
         times = self.trace.time_s
-        if t > times[-1] + 1e-9:
-            raise SumoError(
-                f"vehicles.trace_file: {self.path} ends at t = {times[-1]:g} s; the run needs t = {t:g} s "
-                f"({t - self.t0_s:g} s from its start at {self.t0_s:g} s); record a longer trace or run fewer subframes"
-            )
-        hi = int(np.searchsorted(times, t - 1e-9))
+        hi = self._sample_at(t)
         r, st = self._rec, self._starts
         cols = ("x", "y", "vx", "vy")
         if abs(times[hi] - t) <= 1e-9:
@@ -1263,14 +1258,19 @@ class TraceReplay:
     def time_s(self) -> float:
         return self.t0_s + self.k * self.step_s
 
-    def _at(self, t: float) -> TrackedState:
+    def _sample_at(self, t: float) -> int:
+        """Index of the first trace sample at or after ``t`` (s); an error naming the file past its end."""
         times = self.trace.time_s
         if t > times[-1] + 1e-9:
             raise SumoError(
                 f"vehicles.trace_file: {self.path} ends at t = {times[-1]:g} s; the run needs t = {t:g} s "
                 f"({t - self.t0_s:g} s from its start at {self.t0_s:g} s); record a longer trace or run fewer subframes"
             )
-        hi = int(np.searchsorted(times, t - 1e-9))
+        return int(np.searchsorted(times, t - 1e-9))
+
+    def _at(self, t: float) -> TrackedState:
+        times = self.trace.time_s
+        hi = self._sample_at(t)
         if abs(times[hi] - t) <= 1e-9:
             lo, w = hi, 0.0
         else:

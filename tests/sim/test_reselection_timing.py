@@ -69,6 +69,30 @@ def _prepared(extra: list[str] | None = None) -> Simulator:
     return sim
 
 
+def _capture_at_arrival(sim: Simulator) -> dict:
+    """The sensing state the UEs arriving at slot ``ARRIVAL`` select on, captured when their chunk of
+    the period ends (filled in by the next run)."""
+    n, r = sim.n, sim.n_res
+    state: dict = {}
+    arrivals = sim._arrivals
+
+    def spy(lo: int, hi: int) -> None:
+        if hi - 1 == ARRIVAL:
+            state.update(
+                cur_rsrp=sim._period_rsrp.reshape(n, r).copy(),
+                prev_rsrp=sim._prev_rsrp.reshape(n, r).copy(),
+                cur_rssi=sim._period_rssi.reshape(n, r).copy(),
+                ring=sim._rssi_ring.copy(),
+                oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
+                resource=sim.resource.copy(),
+                noise=sim.noise_mw,
+            )
+        arrivals(lo, hi)
+
+    sim._arrivals = spy  # type: ignore[method-assign]
+    return state
+
+
 def test_a_ue_selects_at_its_own_arrival_on_the_1000_ms_before_it() -> None:
     sim = _prepared()
     cfg, n, r = sim.config, sim.n, sim.n_res
@@ -90,23 +114,7 @@ def test_a_ue_selects_at_its_own_arrival_on_the_1000_ms_before_it() -> None:
     sim._rssi_ring[:, V, R_PREV], sim._rssi_ring[:, V, R_Y] = 1e-15, 2e-15
     sim._rssi_ring[:, W, R_CUR], sim._rssi_ring[:, W, R_X] = 1e-15, 2e-15
 
-    state: dict = {}
-    arrivals = sim._arrivals
-
-    def spy(lo: int, hi: int) -> None:
-        if hi - 1 == ARRIVAL:
-            state.update(
-                cur_rsrp=sim._period_rsrp.reshape(n, r).copy(),
-                prev_rsrp=sim._prev_rsrp.reshape(n, r).copy(),
-                cur_rssi=sim._period_rssi.reshape(n, r).copy(),
-                ring=sim._rssi_ring.copy(),
-                oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
-                resource=sim.resource.copy(),
-                noise=sim.noise_mw,
-            )
-        arrivals(lo, hi)
-
-    sim._arrivals = spy  # type: ignore[method-assign]
+    state = _capture_at_arrival(sim)
     start, reselections = sim.subframe, sim.n_reselections
     links = sim.run(2 * sim.rri).links
     assert links is not None and state and state["oldest"] == (start // sim.rri) % sim._rssi_ring.shape[0]
@@ -140,23 +148,7 @@ def test_the_arrival_slot_one_period_on_is_never_excluded() -> None:
     sim.resource[np.isin(sim.resource, [r_g, r_next]) & (np.arange(n) != V)] = 50 * 2 + 1
     sim._prev_rsrp.reshape(n, r)[V, r_g] = -60.0  # heard at n - RRI: reserved n, which is now
     sim._rssi_ring[:, V, r_g], sim._rssi_ring[:, V, r_next] = 1e-15, 2e-15  # r_g the quietest
-    state: dict = {}
-    arrivals = sim._arrivals
-
-    def spy(lo: int, hi: int) -> None:
-        if hi - 1 == ARRIVAL:
-            state.update(
-                cur_rsrp=sim._period_rsrp.reshape(n, r).copy(),
-                prev_rsrp=sim._prev_rsrp.reshape(n, r).copy(),
-                cur_rssi=sim._period_rssi.reshape(n, r).copy(),
-                ring=sim._rssi_ring.copy(),
-                oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
-                resource=sim.resource.copy(),
-                noise=sim.noise_mw,
-            )
-        arrivals(lo, hi)
-
-    sim._arrivals = spy  # type: ignore[method-assign]
+    state = _capture_at_arrival(sim)
     sim.run(sim.rri)
     assert state and sim.resource[V] == _expected_choice(V, state, cfg) == r_g
 
