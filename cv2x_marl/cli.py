@@ -109,7 +109,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--subframes must be >= 1, got {n}")
     if n != cfg.sim.n_subframes:  # the memory check (and run.json's config) see the run's real length
         cfg = apply_overrides(cfg, [f"sim.n_subframes={n}"])
-    summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet, overwrite=args.overwrite)
+    summary = simulate(cfg, args.seed, n, args.out, progress=not args.quiet, overwrite=args.overwrite, links=args.links)
+    if "links_table" in summary:
+        note = summary["links_table"]
+        print(f"links.parquet not written: {note['expected_rows']:,} rows expected; {note['why']}", file=sys.stderr)
     if args.json:
         _print_json(summary)
     else:
@@ -428,6 +431,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subframes", type=COUNT, help="subframes to simulate (default: sim.n_subframes)")
     p.add_argument("--out", type=Path, help="output folder for links.parquet, summary.json, prr_vs_distance.png")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument(
+        "--links",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="links.parquet: auto (default) writes it up to 2,000,000 expected rows (about 60 MB) and "
+        "skips it above with a note; on: always (as metrics.record_links says); off: never",
+    )
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_simulate)

@@ -73,3 +73,34 @@ def test_no_links_file_without_record_links_and_none_left_by_a_failed_run(
     with pytest.raises(OSError, match="disk full"):
         sim_mod.simulate(cfg_on, 0, 500, tmp_path / "failed", progress=False)
     assert not (tmp_path / "failed").exists() or not any((tmp_path / "failed").iterdir())
+
+
+def test_auto_links_skips_a_table_above_the_limit_and_says_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--links auto`` (the CLI's default): the expected row count (the memory model's pairs, 21 x 20
+    links a period on the paper grid, no cut-off) equals the table's length; above the limit the table
+    is not written and the summary says why; ``on`` writes it whatever its size."""
+    import json
+
+    cfg = apply_overrides(preset("paper"), SMALL)
+    n_sub = 1000  # 10 whole periods
+    rows = sim_mod.expected_link_rows(cfg, n_sub)
+    assert rows == 10 * 21 * 20
+    on = sim_mod.simulate(cfg, 2, n_sub, tmp_path / "on", progress=False, links="auto")
+    assert pq.ParquetFile(tmp_path / "on" / "links.parquet").metadata.num_rows == rows
+    assert "links_table" not in on
+    monkeypatch.setattr(sim_mod, "AUTO_LINKS_MAX_ROWS", rows - 1)
+    skipped = sim_mod.simulate(cfg, 2, n_sub, tmp_path / "auto", progress=False, links="auto")
+    assert not (tmp_path / "auto" / "links.parquet").exists()
+    assert skipped["links_table"] == {
+        "written": False,
+        "expected_rows": rows,
+        "why": f"more than {rows - 1:,} expected rows; pass --links on to write it",
+    }
+    assert json.loads((tmp_path / "auto" / "summary.json").read_text())["links_table"]["expected_rows"] == rows
+    assert skipped["prr_mean"] == on["prr_mean"]  # the same run, without the table
+    sim_mod.simulate(cfg, 2, n_sub, tmp_path / "forced", progress=False, links="on")
+    assert (tmp_path / "forced" / "links.parquet").exists()
+    sim_mod.simulate(cfg, 2, n_sub, tmp_path / "off", progress=False, links="off")
+    assert not (tmp_path / "off" / "links.parquet").exists()
+    with pytest.raises(ValueError, match=r"links must be one of auto, on, off"):
+        sim_mod.simulate(cfg, 2, n_sub, None, progress=False, links="maybe")

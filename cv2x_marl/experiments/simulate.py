@@ -79,6 +79,22 @@ class LinksWriter:
         self.tmp.unlink(missing_ok=True)
 
 
+#: ``links="auto"``: the links table is written only up to this many expected rows (about 28 bytes
+#: each in parquet: some 60 MB); longer or larger runs skip it unless asked for (``links="on"``)
+AUTO_LINKS_MAX_ROWS = 2_000_000
+LINKS_CHOICES = ("auto", "on", "off")
+
+
+def expected_link_rows(cfg: ScenarioConfig, n_subframes: int) -> int:
+    """Rows the links table of a run would have (one per transmission and receiver in range), from
+    the memory model's pair count (:func:`cv2x_marl.sim.memory.estimate_memory_bytes`)."""
+    from cv2x_marl.config import apply_overrides
+    from cv2x_marl.sim.memory import LINK_ROW_BYTES, estimate_memory_bytes
+
+    on = cfg if cfg.metrics.record_links else apply_overrides(cfg, ["metrics.record_links=true"])
+    return int(estimate_memory_bytes(on, n_subframes)["links_table"] // (2 * LINK_ROW_BYTES))
+
+
 def simulate(
     cfg: ScenarioConfig,
     seed: int,
@@ -86,14 +102,42 @@ def simulate(
     out_dir: Path | None,
     progress: bool = True,
     overwrite: bool = False,
+    links: str = "on",
 ) -> dict[str, Any]:
     """Reset, run and (when ``out_dir``) write ``links.parquet``, ``summary.json``, ``prr_vs_distance.png``.
 
     ``out_dir`` is a run folder (:class:`cv2x_marl.runs.RunFolder`): locked, refused when not
     empty unless ``overwrite``, removed again if the run fails.
+
+    Args:
+        links: the links table: ``on`` as ``metrics.record_links`` says, ``off`` never, ``auto`` (the
+            CLI's default) as ``metrics.record_links`` says up to :data:`AUTO_LINKS_MAX_ROWS` expected
+            rows, skipped above (the summary's ``links_table`` says so and why).
     """
-    with run_folder(out_dir, "simulate", overwrite=overwrite, parameters={"seed": seed, "n_subframes": n_subframes}):
-        return _simulate(cfg, seed, n_subframes, out_dir, progress)
+    from cv2x_marl.config import apply_overrides
+
+    if links not in LINKS_CHOICES:
+        raise ValueError(f"links must be one of {', '.join(LINKS_CHOICES)}, got {links!r}")
+    note: dict[str, Any] | None = None
+    if links == "off" and cfg.metrics.record_links:
+        cfg = apply_overrides(cfg, ["metrics.record_links=false"])
+    elif links == "auto" and cfg.metrics.record_links and out_dir is not None:
+        rows = expected_link_rows(cfg, n_subframes)
+        if rows > AUTO_LINKS_MAX_ROWS:
+            cfg = apply_overrides(cfg, ["metrics.record_links=false"])
+            note = {
+                "written": False,
+                "expected_rows": rows,
+                "why": f"more than {AUTO_LINKS_MAX_ROWS:,} expected rows; pass --links on to write it",
+            }
+    params = {"seed": seed, "n_subframes": n_subframes, "links": links}
+    with run_folder(out_dir, "simulate", overwrite=overwrite, parameters=params):
+        summary = _simulate(cfg, seed, n_subframes, out_dir, progress)
+        if note is not None:
+            summary["links_table"] = note
+            if out_dir is not None:
+                write_json(Path(out_dir) / "summary.json", summary)
+        return summary
 
 
 class SlotOccupancy:
