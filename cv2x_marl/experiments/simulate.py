@@ -132,12 +132,7 @@ def simulate(
             }
     params = {"seed": seed, "n_subframes": n_subframes, "links": links}
     with run_folder(out_dir, "simulate", overwrite=overwrite, parameters=params):
-        summary = _simulate(cfg, seed, n_subframes, out_dir, progress)
-        if note is not None:
-            summary["links_table"] = note
-            if out_dir is not None:
-                write_json(Path(out_dir) / "summary.json", summary)
-        return summary
+        return _simulate(cfg, seed, n_subframes, out_dir, progress, links_note=note)
 
 
 class SlotOccupancy:
@@ -189,7 +184,14 @@ class SlotOccupancy:
         )
 
 
-def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | None, progress: bool) -> dict[str, Any]:
+def _simulate(
+    cfg: ScenarioConfig,
+    seed: int,
+    n_subframes: int,
+    out_dir: Path | None,
+    progress: bool,
+    links_note: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     from tqdm import tqdm
 
     t0 = time.perf_counter()
@@ -231,9 +233,12 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
             "config": to_dict(cfg),
         }
     )
+    if links_note is not None:  # links="auto" skipped the table
+        summary["links_table"] = links_note
+    occ: pa.Table | None = None
     if slots is not None:  # vehicles.population=open
-        counts = np.array(slots.present_counts)
         occ = slots.table()
+        counts = np.array(slots.present_counts)
         first, end = occ.column("first_subframe").to_numpy(), occ.column("end_subframe").to_numpy()
         summary["population"] = {  # over the measured run, read at every period end
             "present_mean": float(counts.mean()),
@@ -245,8 +250,8 @@ def _simulate(cfg: ScenarioConfig, seed: int, n_subframes: int, out_dir: Path | 
         }
     if out_dir is not None:
         out_dir = Path(out_dir)
-        if slots is not None:
-            write_parquet(slots.table(), out_dir / "slots.parquet")
+        if occ is not None:
+            write_parquet(occ, out_dir / "slots.parquet")
         if cfg.metrics.record_links and writer is not None:
             from cv2x_marl.sim.simulator import LINK_COLUMNS
 

@@ -892,17 +892,15 @@ class Simulator:
         current period) the sensing window is the 1000 ms before it instead (:meth:`_sensing_at`)."""
         cfg = self.config
         cand = sps.candidate_resources(self.generation_slot[vehicles], cfg.sps, self.rri)
+        rssi: NDArray[np.float32]
         if at_slot is None:
             assert last_rsrp is not None
             rsrp = last_rsrp[vehicles[:, None], cand]
-        else:
-            rsrp, rssi_avg = self._sensing_at(vehicles, cand, at_slot)
-        if exclude_own:
-            rsrp = np.where(cand // self.n_sub == self.slot[vehicles][:, None], np.inf, rsrp)
-        if at_slot is None:
             rssi = _nan_mean_first_axis(self._rssi_ring[:, vehicles[:, None], cand])
         else:
-            rssi = rssi_avg
+            rsrp, rssi = self._sensing_at(vehicles, cand, at_slot)
+        if exclude_own:
+            rsrp = np.where(cand // self.n_sub == self.slot[vehicles][:, None], np.inf, rsrp)
         rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
         choice = sps.select(rsrp, rssi, cfg.sps, self.rng.sps).choice
         return np.asarray(cand[np.arange(vehicles.size), choice])
@@ -934,7 +932,7 @@ class Simulator:
         rsrp = np.where(slot == at_slot, -np.inf, np.where(earlier, cur, prev))
         ring = self._rssi_ring[:, rows, cand]  # [P, V, M] (a copy: fancy indexing)
         now = (self._period_rssi.reshape(n, r)[rows, cand] + self.noise_mw).astype(np.float32)
-        now[cand // self.n_sub == self.slot[vehicles][:, None]] = np.nan  # its own transmission this period
+        now[slot == self.slot[vehicles][:, None]] = np.nan  # its own transmission this period
         oldest = (self.subframe // self.rri) % self._sensing_periods  # holds the period RRI x P ago
         ring[oldest] = np.where(earlier, now, ring[oldest])
         return rsrp, _nan_mean_first_axis(ring)
