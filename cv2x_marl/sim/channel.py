@@ -168,23 +168,24 @@ class Shadowing:
             distance_m: [P] the pairs' current distances (needed by ``pair_distance``).
         """
         n = self._z.shape[0]
-        ab, ba = a * n + b, b * n + a  # flat indices of (a, b) and (b, a)
-        z_flat, odo_flat = self._z.reshape(-1), self._last_odo.reshape(-1)
         if self.correlation == "travelled":
-            odo = odometer_m[a] + odometer_m[b]
-            rho = np.exp(-(odo - odo_flat[ab]) / self._dc)
+            reference = odometer_m[a] + odometer_m[b]
         else:
             if distance_m is None:
                 raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
-            odo = np.asarray(distance_m, dtype=np.float64)
-            change_m = np.abs(odo - odo_flat[ab])
-            rho = np.exp(-np.where(np.isnan(change_m), 0.0, change_m) / self._dc)
-        z = rho * z_flat[ab] + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(a.shape[0])
-        z_flat[ab] = z
-        z_flat[ba] = z
-        odo_flat[ab] = odo
-        odo_flat[ba] = odo
-        return z
+            reference = np.asarray(distance_m, dtype=np.float64)
+        normals = np.asarray(self._rng.standard_normal(a.shape[0]), dtype=np.float64)
+        return kernels.shadowing_update_dense(
+            self._z.reshape(-1),
+            self._last_odo.reshape(-1),
+            np.ascontiguousarray(a, dtype=np.int64),
+            np.ascontiguousarray(b, dtype=np.int64),
+            n,
+            np.ascontiguousarray(reference, dtype=np.float64),
+            normals,
+            float(self._dc),
+            self.correlation == "pair_distance",
+        )
 
     def renew(self, vehicles: NDArray[np.int64], odometer_m: FloatArray) -> None:
         """New vehicles in the slots ``vehicles`` (``vehicles.population=open``): their pairs get fresh,

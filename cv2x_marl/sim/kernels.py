@@ -591,42 +591,6 @@ def pairs_within_range(
 
 
 @njit(cache=True)
-def period_power_sums(
-    rx: NDArray[np.int64],
-    tx: NDArray[np.int64],
-    rx_mw: FloatArray,
-    active: NDArray[np.bool_],
-    resource: NDArray[np.int64],
-    n_res: int,
-    n_vehicles: int,
-) -> tuple[FloatArray, int]:
-    """Power each receiver gets on each resource from the active transmitters, in link order.
-
-    The sum ``np.bincount(rx * n_res + resource[tx], weights=rx_mw)`` over the links whose
-    transmitter is active (same additions in the same order: equal to the last bit).
-
-    Args:
-        rx, tx: [L] the period's ordered pairs (receiver, transmitter).
-        rx_mw: [L] received power of each pair, mW.
-        active: [N] which vehicles transmit in the chunk.
-        resource: [N] each vehicle's reserved resource.
-        n_res: resources per period.
-        n_vehicles: N.
-
-    Returns:
-        ``total`` [N * n_res] (mW) and the number of links with an active transmitter.
-    """
-    total = np.zeros(n_vehicles * n_res)
-    count = 0
-    for k in range(rx.shape[0]):
-        t = tx[k]
-        if active[t]:
-            total[rx[k] * n_res + resource[t]] += rx_mw[k]
-            count += 1
-    return total, count
-
-
-@njit(cache=True)
 def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool) -> float:
     """:func:`_per_success` with the table position found by a scalar bisection (the same index as
     ``np.searchsorted(side="right") - 1``, without its per-call array overhead): equal results."""
@@ -651,72 +615,100 @@ def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray
     return 1.0 - (slope * (sinr_db - per_sinr_db[j]) + per[j])
 
 
-@njit(cache=True)
-def period_link_powers(
-    rx: NDArray[np.int64],
-    tx: NDArray[np.int64],
-    rx_mw: FloatArray,
-    active: NDArray[np.bool_],
-    resource: NDArray[np.int64],
-    n_res: int,
-    total_mw: FloatArray,
-    noise_mw: float,
-    n_links: int,
-) -> tuple[FloatArray, FloatArray]:
-    """Signal and signal over noise-plus-interference of the links whose transmitter is active.
-
-    Args:
-        rx, tx, rx_mw: [L_all] the period's ordered pairs and their received power (mW).
-        active, resource: [N] per vehicle.
-        n_res: resources per period.
-        total_mw: [N * n_res] :func:`period_power_sums`.
-        noise_mw: noise power, mW.
-        n_links: the links with an active transmitter (:func:`period_power_sums`).
-
-    Returns:
-        ``s_mw`` [n_links] and ``S / (I + N)`` [n_links] with ``I = max(total - S, 0)`` on the
-        link's resource (the numpy path's arithmetic, so equal to the last bit).
-    """
-    s_out = np.empty(n_links)
-    ratio = np.empty(n_links)
-    m = 0
-    for k in range(rx.shape[0]):
-        t = tx[k]
-        if not active[t]:
-            continue
-        s = rx_mw[k]
-        i_mw = max(total_mw[rx[k] * n_res + resource[t]] - s, 0.0)
-        s_out[m] = s
-        ratio[m] = s / (i_mw + noise_mw)
-        m += 1
-    return s_out, ratio
+#: relative margin of the linear-domain tests that decide a dB comparison without a logarithm: far
+#: larger than the error of ``10 log10`` (a few ulps), so inside it the logarithm decides, as numpy's
+_LIN_MARGIN = 1e-9
 
 
 @njit(cache=True)
-def period_link_outcomes(
+def _db_below(x: float, x_lin_threshold: float, threshold_db: float) -> bool:
+    """``10 log10(x) < threshold_db`` with the logarithm taken only within :data:`_LIN_MARGIN` of the
+    threshold (``x_lin_threshold = 10^(threshold_db / 10)``): the same answer, most often without it."""
+    if x < x_lin_threshold * (1.0 - _LIN_MARGIN):
+        return True
+    if x > x_lin_threshold * (1.0 + _LIN_MARGIN):
+        return False
+    return 10.0 * math.log10(x) < threshold_db
+
+
+@njit(cache=True)
+def _success_of_ratio(
+    ratio: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    per_lin_lo: float,
+    per_lin_hi: float,
+    threshold_db: float,
+    threshold_lin: float,
+) -> float:
+    """Success probability of a link at linear SINR (or SNR) ``ratio``: the threshold model or the PER
+    table (:func:`_per_success_bisect` on ``10 log10(ratio)``, numpy's dB value), the logarithm taken
+    only when the ratio is within the table (``per_lin_lo``, ``per_lin_hi``: its ends in linear
+    units) or near the threshold: outside, the constant the dB formula gives."""
+    if model == MODEL_THRESHOLD:
+        return 0.0 if _db_below(ratio, threshold_lin, threshold_db) else 1.0
+    if ratio < per_lin_lo * (1.0 - _LIN_MARGIN):
+        return 0.0
+    if ratio > per_lin_hi * (1.0 + _LIN_MARGIN):
+        return 1.0 - per[per.shape[0] - 1]
+    return _per_success_bisect(10.0 * math.log10(ratio), per_sinr_db, per, model == MODEL_PER_TABLE_LOG)
+
+
+@njit(cache=True)
+def _interp_clamped(x: float, xp: FloatArray, fp: FloatArray, left: float, right: float) -> float:
+    """``np.interp(x, xp, fp, left, right)`` for one ``x`` (numpy's formula: ``fp[j]`` at a point,
+    ``slope * (x - xp[j]) + fp[j]`` between points, ``left`` / ``right`` outside, NaN for NaN)."""
+    k = xp.shape[0]
+    if math.isnan(x):
+        return x
+    if x < xp[0]:
+        return left
+    if x > xp[k - 1]:
+        return right
+    if x == xp[k - 1]:
+        return fp[k - 1]
+    lo, hi = 0, k
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if xp[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo - 1
+    if x == xp[j]:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    return slope * (x - xp[j]) + fp[j]
+
+
+@njit(cache=True)
+def period_chunk(
     rx: NDArray[np.int64],
     tx: NDArray[np.int64],
     distance_m: FloatArray,
+    rx_mw: FloatArray,
     active: NDArray[np.bool_],
     resource: NDArray[np.int64],
     slot: NDArray[np.int64],
     n_res: int,
-    sinr_db: FloatArray,
-    snr_db: FloatArray,
-    rx_dbm: FloatArray,
-    u: FloatArray,
+    noise_mw: float,
+    link_rng: np.random.Generator,
     model: int,
     per_sinr_db: FloatArray,
     per: FloatArray,
     threshold_db: float,
     sensitivity_dbm: float,
     releasing: NDArray[np.bool_],
-    sci_ok: NDArray[np.bool_],
-    rsrp_offset_db: float,
-    period_rsrp_dbm: FloatArray,
+    period_rssi_mw: FloatArray,
+    period_sci_mw: FloatArray,
     bin_m: float,
     n_bins: int,
     n_causes: int,
+    sci_rng: np.random.Generator,
+    sci_sinr_lin: FloatArray,
+    sci_bler: FloatArray,
+    sci_offset_db: float,
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.int64],
@@ -730,40 +722,58 @@ def period_link_outcomes(
     NDArray[np.int64],
     FloatArray,
 ]:
-    """One chunk of the simulator's period (``Simulator._chunk``) for every link in one pass.
+    """One chunk of the simulator's period (``Simulator._chunk``) in two compiled passes over the links.
 
-    The links whose transmitter is active, in order, from their SINR, SNR and received power (dB,
-    from :func:`period_link_powers`): success ``P`` (``model``: per_table linear / log, threshold)
-    and ``P0``, outcome ``u < P`` and cause (half duplex, below sensitivity, propagation
-    ``u >= P0``, collision), the SCI RSRP of the sensing (in place, as ``np.maximum.at``; only the SCIs
-    in ``sci_ok`` with ``sps.sci_decoding=sinr``), and the
-    PRR accumulators of :class:`cv2x_marl.sim.metrics.PrrAccumulator` for this chunk. The PER
-    interpolation is :func:`_per_success_bisect` (``np.interp``'s formula; ``exp`` is libm's with
-    ``log``): tested equal to the numpy path (outcomes, causes, P to 1e-12).
+    Pass 1: the power each receiver gets on each resource from the active transmitters,
+    ``total[rx * n_res + resource[tx]] += rx_mw`` in link order (``np.bincount``'s additions, so equal
+    to the last bit), added to the period's S-RSSI ``period_rssi_mw``. Pass 2, for each link whose
+    transmitter is active, in order: interference ``I = max(total - S, 0)`` on the link's resource,
+    ``SINR = S / (I + N)``, one uniform ``u`` from ``link_rng`` (the numpy path's
+    ``rng.link.random(L)``, drawn in the same order: the same numbers), success ``P`` (``model``:
+    per_table linear / log on the dB SINR, threshold) and ``P0`` (on the SNR), outcome ``u < P`` and
+    cause (half duplex, below sensitivity, propagation ``u >= P0``, collision), the strongest decodable
+    SCI per receiver and resource (``period_sci_mw``, linear: the sensing takes its RSRP in dBm when it
+    reads it; a releasing UE's SCI reserves nothing, TS 36.213 14.1.1.6) and the PRR accumulators of
+    :class:`cv2x_marl.sim.metrics.PrrAccumulator`. The dB values (``10 log10``: libm's, equal to
+    numpy's on the CPUs tested) are taken only where a comparison needs them (:func:`_db_below`,
+    :func:`_success_of_ratio`): equal to the numpy path (tested), at a fraction of the cost when most
+    links are far below the PER table.
 
     Args:
-        rx, tx, distance_m: [L_all] the period's ordered pairs and their distance (m).
+        rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
+            power (mW, faded).
         active, resource, slot, releasing: [N] per vehicle.
-        sci_ok: [L] whether each active link's receiver decoded the SCI (``sps.sci_decoding=sinr``,
-            TS 36.213 14.1.1.6); empty: every SCI not lost to half duplex or sensitivity (``always``).
         n_res: resources per period.
-        sinr_db, snr_db, rx_dbm: [L] of the active links.
-        u: [L] the uniforms of the active links.
+        noise_mw: noise power, mW.
+        link_rng: the simulator's ``link`` stream (advanced by one draw per active link).
         model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
         per_sinr_db, per: [K] the PER table.
         threshold_db: SINR threshold of the threshold model, dB.
         sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
-        rsrp_offset_db: PSSCH power to RSRP (per resource element), dB.
-        period_rsrp_dbm: [N * n_res] the period's SCI RSRP, updated in place.
+        period_rssi_mw: [N * n_res] the period's S-RSSI sums, updated in place.
+        period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW), in place.
         bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
+        sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
+            draw per active link, as ``Simulator._sci_decoded``), the PSCCH BLER curve (points in linear
+            SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
+            only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
 
     Returns:
-        ``tx, rx, p, cause`` [L] of the links, then this chunk's ``bin_n, bin_decoded,
+        ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n, bin_decoded,
         bin_expected`` [n_bins], ``bin_causes`` [n_causes * n_bins] (cause-major), ``node_n,
         node_decoded, node_expected`` [N].
     """
     n = active.shape[0]
-    n_links = u.shape[0]
+    total = np.zeros(n * n_res)
+    n_links = 0
+    for k in range(rx.shape[0]):
+        t = tx[k]
+        if active[t]:
+            total[rx[k] * n_res + resource[t]] += rx_mw[k]
+            n_links += 1
+    for q in range(total.shape[0]):
+        if total[q] != 0.0:
+            period_rssi_mw[q] += total[q]
     out_tx = np.empty(n_links, dtype=np.int64)
     out_rx = np.empty(n_links, dtype=np.int64)
     p_out = np.empty(n_links)
@@ -775,8 +785,12 @@ def period_link_outcomes(
     node_n = np.zeros(n, dtype=np.int64)
     node_dec = np.zeros(n, dtype=np.int64)
     node_exp = np.zeros(n)
-    log_domain = model == MODEL_PER_TABLE_LOG
-    every_sci = sci_ok.shape[0] == 0
+    k_per = per_sinr_db.shape[0]
+    lin_lo = 10.0 ** (per_sinr_db[0] / 10.0)
+    lin_hi = 10.0 ** (per_sinr_db[k_per - 1] / 10.0)
+    thr_lin = 10.0 ** (threshold_db / 10.0)
+    sens_lin = 10.0 ** (sensitivity_dbm / 10.0)  # 0.0 for -inf
+    sci_sinr = sci_bler.shape[0] > 0
     m = 0
     for k in range(rx.shape[0]):
         t = tx[k]
@@ -784,20 +798,18 @@ def period_link_outcomes(
             continue
         r = rx[k]
         key = r * n_res + resource[t]
-        if model == MODEL_THRESHOLD:
-            p = 1.0 if sinr_db[m] >= threshold_db else 0.0
-        else:
-            p = _per_success_bisect(sinr_db[m], per_sinr_db, per, log_domain)
-        outcome = u[m] < p
+        s = rx_mw[k]
+        i_mw = max(total[key] - s, 0.0)
+        u = link_rng.random()
+        ratio = s / (i_mw + noise_mw)
+        p = _success_of_ratio(ratio, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
+        outcome = u < p
         would0 = True  # read only when the link fails: then P0 decides propagation or collision
         if not outcome:
-            if model == MODEL_THRESHOLD:
-                p0 = 1.0 if snr_db[m] >= threshold_db else 0.0
-            else:
-                p0 = _per_success_bisect(snr_db[m], per_sinr_db, per, log_domain)
-            would0 = u[m] < p0
+            p0 = _success_of_ratio(s / noise_mw, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
+            would0 = u < p0
         hd = slot[r] == slot[t]
-        below = rx_dbm[m] < sensitivity_dbm
+        below = sensitivity_dbm > -np.inf and _db_below(s, sens_lin, sensitivity_dbm)
         fail = hd or below
         if fail:
             p = 0.0
@@ -809,10 +821,15 @@ def period_link_outcomes(
             c = 2
         if hd:
             c = 1
-        if not fail and not releasing[t] and (every_sci or sci_ok[m]):
-            v = rx_dbm[m] - rsrp_offset_db
-            if v > period_rsrp_dbm[key]:
-                period_rsrp_dbm[key] = v
+        sci = not fail and not releasing[t]
+        if sci_sinr:  # the draw is taken for every link, as the numpy path's
+            x = 10.0 * math.log10(ratio) + sci_offset_db
+            ok = 0.0
+            if not math.isnan(x):
+                ok = 1.0 - _interp_clamped(10.0 ** (x / 10.0), sci_sinr_lin, sci_bler, 1.0, sci_bler[-1])
+            sci = sci_rng.random() < ok and sci
+        if sci and s > period_sci_mw[key]:
+            period_sci_mw[key] = s
         out_tx[m] = t
         out_rx[m] = r
         p_out[m] = p
@@ -829,3 +846,125 @@ def period_link_outcomes(
             node_exp[t] += p
         m += 1
     return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+
+
+@njit(cache=True)
+def pair_geometry(
+    pos_m: FloatArray, vel_mps: FloatArray, i: NDArray[np.int64], j: NDArray[np.int64], box_m: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Displacement, distance and relative speed of the pairs ``(i, j)`` in one pass.
+
+    The numpy path's arithmetic element by element: ``pos[j] - pos[i]`` folded onto the torus where an
+    axis is periodic (``d - box * round(d / box)``, round half to even as ``np.round``), ``hypot`` of it,
+    and ``hypot`` of ``vel[i] - vel[j]``: equal to the last bit.
+
+    Args:
+        pos_m: [N, 2] positions, m.
+        vel_mps: [N, 2] velocities, m/s.
+        i, j: [P] the pairs.
+        box_m: [2] period of each axis, m (inf: not periodic, or distances not wrapped).
+
+    Returns:
+        ``dx, dy, distance`` [P] (m) and relative speed [P] (m/s).
+    """
+    p = i.shape[0]
+    dx = np.empty(p)
+    dy = np.empty(p)
+    dist = np.empty(p)
+    rel = np.empty(p)
+    bx, by = box_m[0], box_m[1]
+    for k in range(p):
+        a, b = i[k], j[k]
+        x = _min_image(pos_m[b, 0] - pos_m[a, 0], bx)
+        y = _min_image(pos_m[b, 1] - pos_m[a, 1], by)
+        dx[k] = x
+        dy[k] = y
+        dist[k] = math.hypot(x, y)
+        rel[k] = math.hypot(vel_mps[a, 0] - vel_mps[b, 0], vel_mps[a, 1] - vel_mps[b, 1])
+    return dx, dy, dist, rel
+
+
+@njit(cache=True)
+def shadowing_update_dense(
+    z_flat: FloatArray,
+    last_flat: FloatArray,
+    a: NDArray[np.int64],
+    b: NDArray[np.int64],
+    n: int,
+    reference: FloatArray,
+    normals: FloatArray,
+    decorrelation_m: float,
+    pair_distance: bool,
+) -> FloatArray:
+    """The AR(1) step of :class:`cv2x_marl.sim.channel.Shadowing` for the pairs ``(a, b)``, in place.
+
+    ``rho = exp(-D / d_c)`` with ``D = reference - last`` (``travelled``: odometer sums) or
+    ``|reference - last|`` (``pair_distance``: pair distances; 0 at a first read, ``last`` NaN);
+    ``z = rho z_last + sqrt(1 - rho^2) w`` with ``w`` = ``normals``; ``z`` and ``reference`` stored at
+    ``(a, b)`` and ``(b, a)``. The numpy path's arithmetic, element by element (equal to the last bit).
+
+    Args:
+        z_flat, last_flat: [N * N] the state, updated in place.
+        a, b: [P] the pairs.
+        n: N.
+        reference: [P] the odometer sum or the pair distance now, m.
+        normals: [P] standard normal innovations.
+        decorrelation_m: d_c, m.
+        pair_distance: which distance D is.
+
+    Returns:
+        [P] the pairs' unit-variance shadowing.
+    """
+    p = a.shape[0]
+    z = np.empty(p)
+    for k in range(p):
+        ab = a[k] * n + b[k]
+        ba = b[k] * n + a[k]
+        if pair_distance:
+            change = abs(reference[k] - last_flat[ab])
+            rho = math.exp(-(0.0 if math.isnan(change) else change) / decorrelation_m)
+        else:
+            rho = math.exp(-(reference[k] - last_flat[ab]) / decorrelation_m)
+        v = rho * z_flat[ab] + math.sqrt(1.0 - rho * rho) * normals[k]
+        z[k] = v
+        z_flat[ab] = v
+        z_flat[ba] = v
+        last_flat[ab] = reference[k]
+        last_flat[ba] = reference[k]
+    return z
+
+
+@njit(cache=True)
+def received_powers(
+    eirp_dbm: float,
+    path_loss_db: FloatArray,
+    z: FloatArray,
+    los: NDArray[np.bool_],
+    std_los_db: float,
+    std_nlos_db: float,
+    gains: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Mean received power of the unordered pairs and the faded power of both directions.
+
+    ``mean = EIRP - (PL + sigma(LOS) z)`` (dBm; ``z`` empty: no shadowing), ``10^(mean / 10)`` (mW)
+    for both directions (the pairs ``(i, j)`` then ``(j, i)``), times the Rayleigh gains ``gains``
+    [2P] (empty: no fading). The numpy path's arithmetic (equal to the last bit).
+
+    Returns:
+        ``mean_dbm`` [P] and ``rx_mw`` [2P].
+    """
+    p = path_loss_db.shape[0]
+    mean = np.empty(p)
+    out = np.empty(2 * p)
+    shadow = z.shape[0] > 0
+    faded = gains.shape[0] > 0
+    for k in range(p):
+        pl = path_loss_db[k]
+        if shadow:
+            pl = pl + (std_los_db if los[k] else std_nlos_db) * z[k]
+        m = eirp_dbm - pl
+        mean[k] = m
+        w = 10.0 ** (m / 10.0)
+        out[k] = w * gains[k] if faded else w
+        out[p + k] = w * gains[p + k] if faded else w
+    return mean, out

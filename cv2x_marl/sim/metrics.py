@@ -147,7 +147,7 @@ class PrrAccumulator:
         node_decoded: NDArray[np.int64],
         node_expected: NDArray[np.float64],
     ) -> None:
-        """Add one batch already counted (:func:`cv2x_marl.sim.kernels.period_link_outcomes`): the
+        """Add one batch already counted (:func:`cv2x_marl.sim.kernels.period_chunk`): the
         per-bin ``[n_bins]`` and per-node ``[N]`` sums of :meth:`add`, ``bin_causes`` cause-major."""
         self.n_transmissions += n_transmissions
         self.bin_n += bin_n

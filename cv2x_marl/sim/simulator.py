@@ -279,10 +279,12 @@ class Simulator:
         self.pscch_curve: link.PscchCurve | None = None
         if config.sps.sci_decoding == "sinr":
             self.pscch_curve = link.load_pscch_curve()
+        #: the PSCCH curve's SINR points in linear units (where its BLER is interpolated), for the kernel
+        self._pscch_lin = np.power(10.0, self.pscch_curve.sinr_db / 10.0) if self.pscch_curve is not None else None
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
         #: the compiled period (_chunk_compiled) where it applies: with the sparse state
-        self.compiled_period = self.sparse_state
+        self.compiled_period = True
         self._all_pairs: tuple[IntArray, IntArray] | None = None
         if config.link.max_range_m is None:  # the KD-tree gives the pairs in range otherwise
             iu, ju = np.triu_indices(self.n, 1)
@@ -347,8 +349,8 @@ class Simulator:
         self._rssi_ring = np.full((self._sensing_periods, self.n, self.n_res), np.nan, dtype=np.float32)
         self._new_period_buffers()
         if self._per_ue:
-            #: [N * R] SCI RSRP of the period before the current one (per_ue sensing), dBm
-            self._prev_rsrp = np.full(self.n * self.n_res, -np.inf)
+            #: [N * R] strongest decoded SCI of the period before the current one (per_ue sensing), mW
+            self._prev_sci_mw = np.zeros(self.n * self.n_res)
             #: [N] the slot a vehicle left by a reselection in the current period (-1: none)
             self._moved_from = np.full(self.n, -1, dtype=np.int64)
         self._geometry: _Geometry | None = None
@@ -405,7 +407,20 @@ class Simulator:
 
     def _new_period_buffers(self) -> None:
         self._period_rssi = np.zeros(self.n * self.n_res)
-        self._period_rsrp = np.full(self.n * self.n_res, -np.inf)
+        #: [N * R] strongest decoded SCI per receiver and resource this period (PSSCH power, mW; 0: none),
+        #: kept linear so that only the rows the sensing reads are taken to dBm (:meth:`_sci_rsrp_dbm`)
+        self._period_sci_mw = np.zeros(self.n * self.n_res)
+
+    @property
+    def period_rsrp_dbm(self) -> FloatArray:
+        """[N * R] SCI RSRP heard so far this period per receiver and resource, dBm (``-inf``: none)."""
+        return self._sci_rsrp_dbm(self._period_sci_mw)
+
+    def _sci_rsrp_dbm(self, sci_mw: FloatArray) -> FloatArray:
+        """The SCI RSRP (dBm per resource element, ``-inf``: no SCI) of strongest-SCI powers (mW, any shape):
+        ``10 log10(P) - 10 log10(12 x RBs)``, the maximum over the SCIs' own RSRP (the logarithm is monotone)."""
+        with np.errstate(divide="ignore"):
+            return np.asarray(10.0 * np.log10(sci_mw) - self._rsrp_offset_db)
 
     @property
     def slot(self) -> IntArray:
@@ -506,20 +521,10 @@ class Simulator:
                 return iu.astype(np.int64), ju.astype(np.int64)
             assert self._all_pairs is not None
             return self._all_pairs
-        if self.sparse_state:  # a compiled sweep along x: the KD-tree's pairs, sorted, ~4x faster at scale
-            box = self.road.periodic_box_m if self.config.road.wrap_distances else np.full(2, np.inf)
-            return kernels.pairs_within_range(np.ascontiguousarray(pos, dtype=np.float64), box, float(rng_m))
-        from scipy.spatial import cKDTree  # only with a link cut-off: importing scipy.spatial costs ~0.8 s
-
-        if self.config.road.wrap_distances:
-            box = np.where(np.isfinite(self.road.periodic_box_m), self.road.periodic_box_m, 1e12)
-            tree = cKDTree(np.mod(pos, box), boxsize=box)
-        else:
-            tree = cKDTree(pos)
-        p = tree.query_pairs(rng_m, output_type="ndarray").astype(np.int64)
-        p.sort(axis=1)
-        p = p[np.lexsort((p[:, 1], p[:, 0]))]
-        return p[:, 0], p[:, 1]
+        # a compiled sweep along x (kernels.pairs_within_range): the KD-tree's pairs (scipy's query_pairs,
+        # tested), sorted; ~4x faster at scale and ~10x at a few hundred vehicles, and no scipy import
+        box = self.road.periodic_box_m if self.config.road.wrap_distances else np.full(2, np.inf)
+        return kernels.pairs_within_range(np.ascontiguousarray(pos, dtype=np.float64), box, float(rng_m))
 
     def _tx_eirp_dbm(self) -> float:
         return _tx_eirp_dbm(self.config)
@@ -531,32 +536,34 @@ class Simulator:
         cfg = self.config
         pos = mobility.positions_m(self.road, self.state) + self.offsets_m
         i, j = self._pairs(pos)
-        disp = self.displacement_m(pos[i], pos[j])
-        dist = np.hypot(disp[:, 0], disp[:, 1])
+        vel = mobility.velocities_mps(self.state)
+        box = self.road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf)
+        dx, dy, dist, rel = kernels.pair_geometry(
+            np.ascontiguousarray(pos, dtype=np.float64), np.ascontiguousarray(vel, dtype=np.float64), i, j, box
+        )
         if cfg.channel.los == "always" or self.road.kind == "highway":
             los = np.ones(i.shape[0], dtype=bool)
         else:
             hc, vc = self.road.corridors(pos if self.present is None else np.nan_to_num(pos))  # empty slots: NaN
             los = Road.corridor_los((hc[i], vc[i]), (hc[j], vc[j]))
-        vel = mobility.velocities_mps(self.state)
-        rel = np.hypot(*(vel[i] - vel[j]).T)
         geo = _Geometry(pos, i, j, dist, los, np.empty(0), np.empty(0), rel)
-        pl = channel.path_loss_db(cfg.channel, cfg.radio.carrier_hz, disp, los)
+        pl = channel.path_loss_db(cfg.channel, cfg.radio.carrier_hz, np.column_stack((dx, dy)), los)
         ch = cfg.channel
+        z = np.empty(0)
         if ch.shadowing_std_db > 0 or ch.shadowing_nlos_std_db > 0:
             z = self.shadowing.sample(i, j, self.state.odometer_m, dist)
-            pl = pl + np.where(los, ch.shadowing_std_db, ch.shadowing_nlos_std_db) * z
-        mean_dbm = self._tx_eirp_dbm() - pl
+        gains = np.empty(0)
+        if ch.fading == "rayleigh":
+            gains = channel.rayleigh_power_gain(self.rng.fading, 2 * i.shape[0])
+        mean_dbm, rx_mw = kernels.received_powers(
+            self._tx_eirp_dbm(), pl, z, los, float(ch.shadowing_std_db), float(ch.shadowing_nlos_std_db), gains
+        )
         geo.rx = np.concatenate([i, j])
         geo.tx = np.concatenate([j, i])
         geo.distance_m = np.concatenate([dist, dist])
         geo.los = np.concatenate([los, los])
         geo.rel_speed_mps = np.concatenate([rel, rel])
         geo.mean_rx_dbm = np.concatenate([mean_dbm, mean_dbm])
-        half_mw = db_to_linear(mean_dbm)  # element-wise: the same values as over both halves, at half the cost
-        rx_mw = np.concatenate([half_mw, half_mw])
-        if ch.fading == "rayleigh":
-            rx_mw = rx_mw * channel.rayleigh_power_gain(self.rng.fading, rx_mw.shape[0])
         geo.rx_mw = rx_mw
         self._geometry = geo
         return geo
@@ -709,7 +716,7 @@ class Simulator:
         sci = ~fail & ~self._releasing[tx]  # a UE's last SCI before reselecting reserves nothing (standard)
         if self.pscch_curve is not None:  # sps.sci_decoding=sinr: only a decoded PSCCH reserves
             sci &= self._sci_decoded(sinr_db)
-        np.maximum.at(self._period_rsrp, key[sci], rx_dbm[sci] - self._rsrp_offset_db)
+        np.maximum.at(self._period_sci_mw, key[sci], s_mw[sci])
 
         if acc is not None:
             acc.add(tx, geo.distance_m[sel], p, outcome, cause, int(active.sum()))
@@ -740,57 +747,47 @@ class Simulator:
             cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
 
     def _chunk_compiled(self, geo: _Geometry, active: NDArray[np.bool_], acc: PrrAccumulator | None) -> None:
-        """:meth:`_chunk` in compiled passes over the period's pairs (the sparse state, no links table,
-        ``link.model`` per_table or threshold, no in-band emission of either model): the same draws, the same sums in
-        the same order and numpy's ``log10``; the PER interpolation compiled (``np.interp``'s formula),
-        tested equal to the numpy path (``tests/sim/test_scale.py``). With ``sps.sci_decoding=sinr`` the
-        SCI draws and the PSCCH BLER are taken here, as in :meth:`_chunk`, and the kernel records only the
-        decoded SCIs (tested equal, ``tests/sim/test_sci_decoding.py``)."""
+        """:meth:`_chunk` in two compiled passes over the period's pairs (:func:`kernels.period_chunk`; no links
+        table, ``link.model`` per_table or threshold, no in-band emission of either model): the same draws
+        from the same streams, the same sums in the same order, the dB values and the PER and PSCCH
+        interpolation with numpy's formulas, taken only where a comparison needs them; tested equal to the
+        numpy path (``tests/sim/test_scale.py``, ``tests/sim/test_sci_decoding.py``)."""
         cfg = self.config
-        total, n_links = kernels.period_power_sums(geo.rx, geo.tx, geo.rx_mw, active, self.resource, self.n_res, self.n)
-        s_mw, ratio = kernels.period_link_powers(
-            geo.rx, geo.tx, geo.rx_mw, active, self.resource, self.n_res, total, self.noise_mw, n_links
-        )
-        sinr_db = 10.0 * np.log10(ratio)  # numpy's log10, as the numpy path
-        snr_db = 10.0 * np.log10(s_mw / self.noise_mw)
-        rx_dbm = 10.0 * np.log10(s_mw)
-        del s_mw, ratio
-        u = self.rng.link.random(n_links)
-        # sps.sci_decoding=sinr: which SCIs are decoded, drawn as in _chunk; empty: every SCI (always)
-        sci_ok = self._sci_decoded(sinr_db) if self.pscch_curve is not None else np.empty(0, dtype=bool)
-        model = cfg.link.model
-        code = kernels.MODEL_THRESHOLD if model == "threshold" else self.curve.kernel_model
-        sens = cfg.radio.sensitivity_dbm
         nb = acc.n_bins if acc is not None else 1
-        tx, rx, p, cause, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp = (
-            kernels.period_link_outcomes(
-                geo.rx,
-                geo.tx,
-                geo.distance_m,
-                active,
-                self.resource,
-                self.slot,
-                self.n_res,
-                sinr_db,
-                snr_db,
-                rx_dbm,
-                u,
-                code,
-                self.curve.sinr_db,
-                self.curve.per,
-                float(cfg.link.sinr_threshold_db),
-                -np.inf if sens is None else float(sens),
-                self._releasing,
-                sci_ok,
-                float(self._rsrp_offset_db),
-                self._period_rsrp,
-                acc.bin_m if acc is not None else 1.0,
-                nb,
-                len(CAUSE_CODE),
-            )
+        sens = cfg.radio.sensitivity_dbm
+        code = kernels.MODEL_THRESHOLD if cfg.link.model == "threshold" else self.curve.kernel_model
+        pscch = self.pscch_curve
+        sci_lin, sci_bler = np.empty(0), np.empty(0)  # sps.sci_decoding=always: every SCI
+        if pscch is not None and self._pscch_lin is not None:
+            sci_lin, sci_bler = self._pscch_lin, pscch.bler
+        tx, rx, p, cause, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp = kernels.period_chunk(
+            geo.rx,
+            geo.tx,
+            geo.distance_m,
+            geo.rx_mw,
+            active,
+            self.resource,
+            self.slot,
+            self.n_res,
+            self.noise_mw,
+            self.rng.link,
+            code,
+            self.curve.sinr_db,
+            self.curve.per,
+            float(cfg.link.sinr_threshold_db),
+            -np.inf if sens is None else float(sens),
+            self._releasing,
+            self._period_rssi,
+            self._period_sci_mw,
+            acc.bin_m if acc is not None else 1.0,
+            nb,
+            len(CAUSE_CODE),
+            self._sci_rng if self._sci_rng is not None else self.rng.link,
+            sci_lin,
+            sci_bler,
+            float(cfg.sps.sci_sinr_offset_db),
         )
         self.last_links = (tx, rx, p, cause)
-        self._period_rssi += total
         if acc is not None:
             acc.add_counts(int(active.sum()), bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp)
 
@@ -884,18 +881,19 @@ class Simulator:
         self._releasing = last & ~keep
 
     def _sensing_selection(
-        self, vehicles: IntArray, last_rsrp: FloatArray | None, exclude_own: bool, at_slot: int | None = None
+        self, vehicles: IntArray, last_sci_mw: FloatArray | None, exclude_own: bool, at_slot: int | None = None
     ) -> IntArray:
         """Resources chosen by sensing (TS 36.213 14.1.1.6) for ``vehicles`` [V]: the SCIs of the
-        period just ended (``last_rsrp`` [N, R], dBm) and the S-RSSI of the sensing window; with
-        ``at_slot`` (``sps.reselection_timing=per_ue``: the vehicles' packet arrival, a slot of the
-        current period) the sensing window is the 1000 ms before it instead (:meth:`_sensing_at`)."""
+        period just ended (``last_sci_mw`` [N, R], the strongest decoded SCI's power, mW) and the S-RSSI
+        of the sensing window; with ``at_slot`` (``sps.reselection_timing=per_ue``: the vehicles' packet
+        arrival, a slot of the current period) the sensing window is the 1000 ms before it instead
+        (:meth:`_sensing_at`)."""
         cfg = self.config
         cand = sps.candidate_resources(self.generation_slot[vehicles], cfg.sps, self.rri)
         rssi: NDArray[np.float32]
         if at_slot is None:
-            assert last_rsrp is not None
-            rsrp = last_rsrp[vehicles[:, None], cand]
+            assert last_sci_mw is not None
+            rsrp = self._sci_rsrp_dbm(last_sci_mw[vehicles[:, None], cand])
             rssi = _nan_mean_first_axis(self._rssi_ring[:, vehicles[:, None], cand])
         else:
             rsrp, rssi = self._sensing_at(vehicles, cand, at_slot)
@@ -925,8 +923,8 @@ class Simulator:
         rows = vehicles[:, None]
         slot = cand // self.n_sub
         earlier = slot < at_slot  # heard in this period, before the arrival
-        cur = self._period_rsrp.reshape(n, r)[rows, cand]
-        prev = self._prev_rsrp.reshape(n, r)[rows, cand]
+        cur = self._sci_rsrp_dbm(self._period_sci_mw.reshape(n, r)[rows, cand])
+        prev = self._sci_rsrp_dbm(self._prev_sci_mw.reshape(n, r)[rows, cand])
         # the arrival slot itself (subframe n + RRI, when T2 = RRI): the SCI reserving it would be sent at
         # n, outside the window [n - 1000, n - 1]; the one heard at n - RRI reserves n only
         rsrp = np.where(slot == at_slot, -np.inf, np.where(earlier, cur, prev))
@@ -1008,7 +1006,7 @@ class Simulator:
         old_sent = moved & (old <= g)
         return np.concatenate([veh[new_sent], veh[old_sent]]), np.concatenate([slot[new_sent], old[old_sent]])
 
-    def _select_joining(self, last_rsrp: FloatArray) -> None:
+    def _select_joining(self, last_sci_mw: FloatArray) -> None:
         """``vehicles.population=open``: the vehicles that entered at the end of the previous period and
         listened through this one select a resource by sensing (their sensing window is this period:
         the SCIs that exclude resources are this period's, as for every other vehicle) and draw a
@@ -1018,7 +1016,7 @@ class Simulator:
         if not join.size:
             return
         cfg = self.config
-        self.resource[join] = self._sensing_selection(join, last_rsrp, exclude_own=False)  # it sent nothing
+        self.resource[join] = self._sensing_selection(join, last_sci_mw, exclude_own=False)  # it sent nothing
         self.counter[join] = sps.draw_counters(cfg.sps, self.rri, join.size, self.rng.sps)
         self._joining[join] = False
         self.n_reselections += int(join.size)
@@ -1070,15 +1068,15 @@ class Simulator:
         own_res = (sent_slot * self.n_sub)[:, None] + np.arange(self.n_sub)[None, :]
         ring.reshape(-1)[(own[:, None] + own_res).reshape(-1)] = np.nan  # not monitored (half duplex)
         self._rssi_ring[k] = ring
-        last_rsrp = self._period_rsrp.reshape(self.n, self.n_res)
+        last_sci_mw = self._period_sci_mw.reshape(self.n, self.n_res)
 
         if self._per_ue:  # counters and reselections ran at the arrivals (_arrivals)
-            self._prev_rsrp = self._period_rsrp
+            self._prev_sci_mw = self._period_sci_mw
             self._moved_from.fill(-1)
             if self.present is not None:
-                self._select_joining(last_rsrp)
+                self._select_joining(last_sci_mw)
         else:
-            self._counters_and_reselections(last_rsrp)
+            self._counters_and_reselections(last_sci_mw)
         self._new_period_buffers()
         if self._source is not None:
             self.state = self._source.advance()
@@ -1089,9 +1087,9 @@ class Simulator:
             self.state = mobility.advance(self.road, cfg.road, self.state, self.rri / 1000.0, self.rng.mobility)
         self._geometry = None
 
-    def _counters_and_reselections(self, last_rsrp: FloatArray) -> None:
+    def _counters_and_reselections(self, last_sci_mw: FloatArray) -> None:
         """``sps.reselection_timing=period_end``: every vehicle's counter and reselection at the end of
-        the period, on the SCIs of the period just ended (``last_rsrp`` [N, R], dBm)."""
+        the period, on the SCIs of the period just ended (``last_sci_mw`` [N, R], strongest SCI, mW)."""
         cfg = self.config
         if self.present is None:
             self.counter -= 1
@@ -1111,10 +1109,10 @@ class Simulator:
         if np.any(expired):
             self.counter[expired] = sps.draw_counters(cfg.sps, self.rri, int(expired.sum()), self.rng.sps)
         if reselect.size:
-            self.resource[reselect] = self._sensing_selection(reselect, last_rsrp, cfg.sps.exclude_unmonitored)
+            self.resource[reselect] = self._sensing_selection(reselect, last_sci_mw, cfg.sps.exclude_unmonitored)
             self.initial_resource[reselect] = False
             self.n_reselections += int(reselect.size)
         if self.present is not None:
-            self._select_joining(last_rsrp)
+            self._select_joining(last_sci_mw)
         if cfg.sps.reservation_signalling == "standard":
             self._decide_releases()

@@ -24,6 +24,7 @@ BASE = [
     "sps.reselection_timing=per_ue",
 ]
 ARRIVAL = 90  # slot of the arrival: candidates in slots 91-99 (this period) and 0-10 (the next)
+STRONG_SCI_MW = 1e-3  # a strong SCI: 0 dBm of PSSCH power, RSRP far above any threshold
 V, W = 0, 1  # the two UEs that reselect at ARRIVAL
 R_PREV, R_Y = 95 * 2 + 0, 96 * 2 + 1  # candidates of V after the arrival slot
 R_CUR, R_X = 5 * 2 + 0, 6 * 2 + 1  # candidates of W before it (slots 5, 6: heard this period or not at all)
@@ -79,8 +80,8 @@ def _capture_at_arrival(sim: Simulator) -> dict:
     def spy(lo: int, hi: int) -> None:
         if hi - 1 == ARRIVAL:
             state.update(
-                cur_rsrp=sim._period_rsrp.reshape(n, r).copy(),
-                prev_rsrp=sim._prev_rsrp.reshape(n, r).copy(),
+                cur_rsrp=sim.period_rsrp_dbm.reshape(n, r).copy(),
+                prev_rsrp=sim._sci_rsrp_dbm(sim._prev_sci_mw).reshape(n, r).copy(),
                 cur_rssi=sim._period_rssi.reshape(n, r).copy(),
                 ring=sim._rssi_ring.copy(),
                 oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
@@ -106,10 +107,10 @@ def test_a_ue_selects_at_its_own_arrival_on_the_1000_ms_before_it() -> None:
     # SCIs: V heard one on R_PREV a period ago (slot 95 >= 90: that is the live reservation: excluded) and
     # one on R_Y "this period" (slot 96 is after the arrival: not yet heard, so ignored); W heard one on
     # R_CUR this period (slot 5 < 90: excluded) and one on R_X only a period ago (slot 6 was silent since: free)
-    sim._prev_rsrp.reshape(n, r)[V, R_PREV] = -60.0
-    sim._period_rsrp.reshape(n, r)[V, R_Y] = -60.0
-    sim._period_rsrp.reshape(n, r)[W, R_CUR] = -60.0
-    sim._prev_rsrp.reshape(n, r)[W, R_X] = -60.0
+    sim._prev_sci_mw.reshape(n, r)[V, R_PREV] = STRONG_SCI_MW
+    sim._period_sci_mw.reshape(n, r)[V, R_Y] = STRONG_SCI_MW
+    sim._period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
+    sim._prev_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
     # S-RSSI: the four are the quietest candidates, in this order for each UE
     sim._rssi_ring[:, V, R_PREV], sim._rssi_ring[:, V, R_Y] = 1e-15, 2e-15
     sim._rssi_ring[:, W, R_CUR], sim._rssi_ring[:, W, R_X] = 1e-15, 2e-15
@@ -146,7 +147,7 @@ def test_the_arrival_slot_one_period_on_is_never_excluded() -> None:
     sim.generation_slot[V] = ARRIVAL
     sim.resource[V] = 40 * 2
     sim.resource[np.isin(sim.resource, [r_g, r_next]) & (np.arange(n) != V)] = 50 * 2 + 1
-    sim._prev_rsrp.reshape(n, r)[V, r_g] = -60.0  # heard at n - RRI: reserved n, which is now
+    sim._prev_sci_mw.reshape(n, r)[V, r_g] = STRONG_SCI_MW  # heard at n - RRI: reserved n, which is now
     sim._rssi_ring[:, V, r_g], sim._rssi_ring[:, V, r_next] = 1e-15, 2e-15  # r_g the quietest
     state = _capture_at_arrival(sim)
     sim.run(sim.rri)
@@ -163,8 +164,8 @@ def test_the_same_ues_at_the_period_end_select_on_the_last_period_only() -> None
     sim.generation_slot[W] = ARRIVAL
     sim.resource[W] = 60 * 2
     sim.resource[np.isin(sim.resource, [R_CUR, R_X]) & (np.arange(n) != W)] = 50 * 2 + 1
-    sim._period_rsrp.reshape(n, r)[W, R_CUR] = -60.0
-    sim._period_rsrp.reshape(n, r)[W, R_X] = -60.0
+    sim._period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
+    sim._period_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
     sim._rssi_ring[:, W, R_CUR], sim._rssi_ring[:, W, R_X] = 1e-15, 2e-15
     sim.run(sim.rri)
     assert sim.resource[W] not in (R_CUR, R_X) and (sim.resource[W] // 2 - ARRIVAL - 1) % 100 < 20
@@ -181,12 +182,12 @@ def test_standard_signalling_releases_at_the_arrival_where_the_counter_reaches_z
     sim.resource[np.isin(sim.resource, [60, 140]) & ~np.isin(np.arange(n), [u, v])] = 10 * 2 + 1
     sim._releasing[:] = False
     sim.run(sim.rri - 1)  # up to slot 98, before the period end
-    rsrp = sim._period_rsrp.reshape(n, r)
+    rsrp = sim.period_rsrp_dbm.reshape(n, r)
     assert sim._releasing[[u, v]].all() and np.all(sim.counter[[u, v]] == 0)  # keep_probability 0
     assert np.isfinite(rsrp[:, 60]).any()  # u's packet before the arrival still reserves
     assert np.isneginf(rsrp[:, 140]).all()  # v's last packet (after it) reserves nothing
     sim.run(1 + 31)  # period end, then the next period up to slot 30: u's last packet
-    assert np.isneginf(sim._period_rsrp.reshape(n, r)[:, 60]).all()
+    assert np.isneginf(sim.period_rsrp_dbm.reshape(n, r)[:, 60]).all()
     before = sim.n_reselections
     sim.run(20)  # slots 31-50, the arrival at 50: both reselect, with fresh counters
     assert sim.n_reselections - before == 2 and not sim._releasing[[u, v]].any()
@@ -315,5 +316,5 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_per_ue() -> Non
     (m1, n1, r1, s1), (m2, n2, r2, s2) = runs
     assert n1 == n2 > 0 and m1["prr_mean"] == m2["prr_mean"] and m1["n_link_samples"] == m2["n_link_samples"]
     np.testing.assert_array_equal(r1, r2)
-    np.testing.assert_array_equal(s1._period_rsrp, s2._period_rsrp)
+    np.testing.assert_array_equal(s1._period_sci_mw, s2._period_sci_mw)
     np.testing.assert_array_equal(s1._rssi_ring, s2._rssi_ring)

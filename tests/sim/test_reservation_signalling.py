@@ -25,7 +25,7 @@ def test_the_last_sci_before_reselection_reserves_nothing() -> None:
     std = _mid_period("standard")
     releasing = np.flatnonzero(std._releasing)
     assert releasing.size > 0 and np.all(std.counter[releasing] == 1)  # keep_probability 0: all of them
-    rsrp = std._period_rsrp.reshape(std.n, std.n_res)
+    rsrp = std.period_rsrp_dbm.reshape(std.n, std.n_res)
     sent = [i for i in releasing if std.slot[i] < std.rri - 1]
     others = [i for i in range(std.n) if i not in set(releasing) and std.slot[i] < std.rri - 1]
     assert sent and others
@@ -36,7 +36,7 @@ def test_the_last_sci_before_reselection_reserves_nothing() -> None:
     legacy = _mid_period("always")
     assert not legacy._releasing.any()
     np.testing.assert_array_equal(legacy.resource, std.resource)  # same start: only the SCIs differ
-    assert np.any(np.isfinite(legacy._period_rsrp.reshape(std.n, std.n_res)[:, std.resource[alone]]))
+    assert np.any(np.isfinite(legacy.period_rsrp_dbm.reshape(std.n, std.n_res)[:, std.resource[alone]]))
 
 
 def test_releasing_ues_reselect_at_the_period_end_and_the_rest_keep_their_counters() -> None:

@@ -151,7 +151,7 @@ def _run_scene(mode: str) -> tuple[Simulator, np.ndarray]:
     pos = _scene_positions()
     sim.set_offsets(pos - mobility.positions_m(sim.road, sim.state))
     sim.run(sim.rri - 1)  # every transmission of the period, before its end
-    heard = sim._period_rsrp.reshape(sim.n, sim.n_res)[R].copy()
+    heard = sim.period_rsrp_dbm.reshape(sim.n, sim.n_res)[R].copy()
     sim.run(1)  # the period ends: R reselects
     return sim, heard
 
@@ -215,7 +215,7 @@ def test_half_duplex_receivers_record_no_sci_in_either_mode() -> None:
         sim.resource = np.array([R_RES] + [X_RES] * 6 + OTHER_RES, dtype=np.int64)
         sim.set_offsets(_scene_positions() - mobility.positions_m(sim.road, sim.state))
         sim.run(sim.rri - 1)
-        rsrp = sim._period_rsrp.reshape(sim.n, sim.n_res)
+        rsrp = sim.period_rsrp_dbm.reshape(sim.n, sim.n_res)
         for v in [*X_TX, OTHERS[0]]:  # all in slot 1
             assert np.isneginf(rsrp[v, 2:4]).all(), (mode, v)
         assert np.isfinite(rsrp[OTHERS[1], 3])  # slot 2 hears (1, 1): not in its subframe, decoded alone
@@ -244,13 +244,13 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr() -> None:
     (p1, n1, r1, s1), (p2, n2, r2, s2) = runs
     assert (p1, n1) == (p2, n2)
     np.testing.assert_array_equal(r1, r2)
-    np.testing.assert_array_equal(s1._period_rsrp, s2._period_rsrp)
+    np.testing.assert_array_equal(s1.period_rsrp_dbm, s2.period_rsrp_dbm)
     np.testing.assert_array_equal(s1._rssi_ring, s2._rssi_ring)
     # the check can fail: with every SCI recorded (always) the map differs
     ref = Simulator(apply_overrides(preset("highway"), [b for b in base if not b.startswith("sps.sci")]))
     ref.reset(seed=4)
     ref.run(650)
-    assert np.sum(ref._period_rsrp != s1._period_rsrp) > 0
+    assert np.sum(ref.period_rsrp_dbm != s1.period_rsrp_dbm) > 0
 
 
 def test_sinr_records_a_subset_of_the_scis_always_records() -> None:
@@ -264,7 +264,7 @@ def test_sinr_records_a_subset_of_the_scis_always_records() -> None:
         sim = Simulator(apply_overrides(preset("highway"), [*base, f"sps.sci_decoding={mode}"]))
         sim.reset(seed=4, warmup_subframes=0)
         sim.run(99)
-        maps.append(sim._period_rsrp.copy())
+        maps.append(sim.period_rsrp_dbm.copy())
     a, b = maps
     assert np.all(b <= a)
     lower = np.count_nonzero(b < a)

@@ -1,0 +1,204 @@
+"""The compiled period (kernels.period_chunk, pair_geometry, shadowing_update_dense, received_powers)
+against the numpy formulas they replace, value by value, and the whole compiled period against the
+numpy period on dense-state scenarios (the sparse state: tests/sim/test_scale.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.sim import Simulator, kernels
+from cv2x_marl.sim.road import Road
+
+
+def _db(x: np.ndarray) -> np.ndarray:
+    return 10.0 * np.log10(x)
+
+
+def test_db_below_agrees_with_the_logarithm_at_and_around_the_threshold() -> None:
+    """The linear pre-test decides only outside the margin; at the threshold the logarithm decides."""
+    rng = np.random.default_rng(3)
+    for threshold_db in (-2.0, 0.0, 12.0, -95.0, 7.3):
+        lin = 10.0 ** (threshold_db / 10.0)
+        # exactly at, a few ulps around, inside the margin, and far on either side
+        ulps = lin + np.arange(-40, 41) * np.spacing(lin)
+        near = lin * (1.0 + rng.uniform(-3e-9, 3e-9, 400))
+        far = lin * 10.0 ** rng.uniform(-3, 3, 400)
+        x = np.concatenate([[lin], ulps, near, far])
+        got = np.array([kernels._db_below(float(v), lin, threshold_db) for v in x])
+        np.testing.assert_array_equal(got, _db(x) < threshold_db)
+    # a value whose dB is exactly the threshold is not below it (10 log10(100) = 20 exactly)
+    assert not kernels._db_below(100.0, 100.0, 20.0)
+    v = float(np.nextafter(100.0, 0.0))  # one ulp below: its dB value rounds to 20.0, not below either
+    assert kernels._db_below(v, 100.0, 20.0) == bool(10.0 * np.log10(v) < 20.0) is False
+    assert kernels._db_below(99.9999, 100.0, 20.0)
+
+
+@pytest.mark.parametrize("model", [kernels.MODEL_PER_TABLE, kernels.MODEL_PER_TABLE_LOG, kernels.MODEL_THRESHOLD])
+def test_success_of_ratio_equals_the_table_on_the_db_value(model: int) -> None:
+    """P from the linear SINR equals _per_success_bisect on numpy's dB value, bit for bit, including the
+    table's ends, the ulps around them, far outside, and 0 / NaN."""
+    sinr_db = np.array([-2.0, 0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
+    per = np.array([1.0, 0.9, 0.7, 0.3, 0.09, 0.02, 0.002, 0.001])
+    lo, hi = 10.0 ** (sinr_db[0] / 10.0), 10.0 ** (sinr_db[-1] / 10.0)
+    thr_db = 3.0
+    thr = 10.0 ** (thr_db / 10.0)
+    rng = np.random.default_rng(5)
+    ends = [v + k * np.spacing(v) for v in (lo, hi, thr) for k in range(-20, 21)]
+    x = np.concatenate([ends, 10.0 ** rng.uniform(-3.0, 2.0, 5000), 10.0 ** (sinr_db / 10.0), [0.0, 1e-300, 1e300]])
+    log_domain = model == kernels.MODEL_PER_TABLE_LOG
+    for v in x:
+        got = kernels._success_of_ratio(float(v), model, sinr_db, per, lo, hi, thr_db, thr)
+        with np.errstate(divide="ignore"):
+            d = float(_db(np.array([v]))[0])
+        if model == kernels.MODEL_THRESHOLD:
+            want = 1.0 if d >= thr_db else 0.0
+        else:
+            want = kernels._per_success_bisect(d, sinr_db, per, log_domain)
+        assert got == want, (v, d, got, want)
+    assert kernels._success_of_ratio(math.nan, kernels.MODEL_PER_TABLE, sinr_db, per, lo, hi, thr_db, thr) == 0.0
+
+
+def test_interp_clamped_equals_np_interp() -> None:
+    xp = np.array([0.1, 0.5, 1.0, 3.0, 10.0])
+    fp = np.array([1.0, 0.8, 0.4, 0.05, 0.0])
+    rng = np.random.default_rng(2)
+    x = np.concatenate([xp, rng.uniform(0.0, 12.0, 3000), [np.nextafter(0.1, 0.0), np.nextafter(10.0, 11.0), -1.0]])
+    want = np.interp(x, xp, fp, left=1.0, right=0.0)
+    got = np.array([kernels._interp_clamped(float(v), xp, fp, 1.0, 0.0) for v in x])
+    np.testing.assert_array_equal(got, want)
+    assert math.isnan(kernels._interp_clamped(math.nan, xp, fp, 1.0, 0.0))
+
+
+@pytest.mark.parametrize("box", [(3000.0, np.inf), (2000.0, 1500.0), (np.inf, np.inf)])
+def test_pair_geometry_equals_numpy(box: tuple[float, float]) -> None:
+    rng = np.random.default_rng(11)
+    n = 150
+    pos = rng.uniform(0.0, 2500.0, (n, 2))
+    vel = rng.normal(0.0, 20.0, (n, 2))
+    i, j = (a.astype(np.int64) for a in np.triu_indices(n, 1))
+    b = np.array(box)
+    dx, dy, dist, rel = kernels.pair_geometry(pos, vel, i, j, b)
+    disp = pos[j] - pos[i]
+    periodic = np.isfinite(b)
+    disp[:, periodic] -= b[periodic] * np.round(disp[:, periodic] / b[periodic])  # Road.minimum_image
+    np.testing.assert_array_equal(dx, disp[:, 0])
+    np.testing.assert_array_equal(dy, disp[:, 1])
+    np.testing.assert_array_equal(dist, np.hypot(disp[:, 0], disp[:, 1]))
+    np.testing.assert_array_equal(rel, np.hypot(*(vel[i] - vel[j]).T))
+    if periodic[0]:
+        assert np.all(np.abs(dx) <= b[0] / 2)
+    # a hand-made pair: 100 m ahead across the seam of a 3 km ring, 4 m apart laterally
+    p2 = np.array([[2950.0, 2.0], [50.0, 6.0]])
+    v2 = np.array([[30.0, 0.0], [-25.0, 0.0]])
+    g = kernels.pair_geometry(p2, v2, np.array([0]), np.array([1]), np.array([3000.0, np.inf]))
+    assert (g[0][0], g[1][0], g[3][0]) == (100.0, 4.0, 55.0)
+    assert g[2][0] == pytest.approx(math.hypot(100.0, 4.0), rel=1e-15)
+
+
+@pytest.mark.parametrize("pair_distance", [False, True])
+def test_shadowing_update_dense_equals_the_numpy_ar1_step(pair_distance: bool) -> None:
+    rng = np.random.default_rng(4)
+    n = 40
+    z0 = rng.standard_normal((n, n))
+    z0 = np.triu(z0, 1) + np.triu(z0, 1).T
+    last0 = rng.uniform(0.0, 300.0, (n, n))
+    last0 = np.triu(last0, 1) + np.triu(last0, 1).T
+    if pair_distance:
+        last0[0, 5] = last0[5, 0] = np.nan  # never read: keeps its Z (rho = 1)
+    a, b = (x.astype(np.int64) for x in np.triu_indices(n, 1))
+    # travelled: the odometer sum only grows; pair_distance: any new distance
+    ref = (
+        last0[a, b] + rng.uniform(0.0, 100.0, a.shape[0]) if not pair_distance else rng.uniform(0.0, 400.0, a.shape[0])
+    )
+    w = rng.standard_normal(a.shape[0])
+    dc = 25.0
+    # the numpy step (channel.Shadowing.sample before it was compiled)
+    ab = a * n + b
+    prev = z0.reshape(-1)[ab]
+    if pair_distance:
+        change = np.abs(ref - last0.reshape(-1)[ab])
+        rho = np.exp(-np.where(np.isnan(change), 0.0, change) / dc)
+    else:
+        rho = np.exp(-(ref - last0.reshape(-1)[ab]) / dc)
+    want = rho * prev + np.sqrt(1.0 - rho * rho) * w
+    z, last = z0.copy(), last0.copy()
+    got = kernels.shadowing_update_dense(z.reshape(-1), last.reshape(-1), a, b, n, ref, w, dc, pair_distance)
+    assert np.all(np.isfinite(want))
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(z[a, b], want)
+    np.testing.assert_array_equal(z[b, a], want)  # symmetric
+    np.testing.assert_array_equal(last[a, b], ref)
+    np.testing.assert_array_equal(last[b, a], ref)
+    if pair_distance:
+        k = int(np.flatnonzero((a == 0) & (b == 5))[0])
+        assert got[k] == z0[0, 5]  # rho = 1: sqrt(0) * w adds 0
+
+
+@pytest.mark.parametrize(("shadow", "fading"), [(True, True), (False, True), (True, False), (False, False)])
+def test_received_powers_equal_numpy(shadow: bool, fading: bool) -> None:
+    rng = np.random.default_rng(9)
+    p = 500
+    pl = rng.uniform(50.0, 130.0, p)
+    los = rng.random(p) < 0.6
+    z = rng.standard_normal(p) if shadow else np.empty(0)
+    gains = rng.standard_exponential(2 * p) if fading else np.empty(0)
+    mean, rx = kernels.received_powers(29.0, pl, z, los, 3.0, 4.0, gains)
+    want_pl = pl + np.where(los, 3.0, 4.0) * z if shadow else pl
+    want_mean = 29.0 - want_pl
+    half = np.power(10.0, want_mean / 10.0)
+    want_rx = np.concatenate([half, half])
+    if fading:
+        want_rx = want_rx * gains
+    np.testing.assert_array_equal(mean, want_mean)
+    np.testing.assert_array_equal(rx, want_rx)
+    assert mean[0] == 29.0 - want_pl[0]  # by hand: EIRP minus the shadowed loss
+
+
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [
+        ("paper", []),  # Manhattan grid, LOS / NLOS, all pairs
+        ("highway", ["road.length_m=2500", "link.per_interpolation=log", "sps.reservation_signalling=standard"]),
+        ("highway", ["road.length_m=2500", "link.model=threshold", "radio.sensitivity_dbm=-92"]),
+        ("highway", ["road.length_m=2500", "sps.sci_decoding=sinr", "sps.sci_sinr_offset_db=-6"]),
+        ("paper", ["channel.shadowing_correlation=pair_distance", "sps.reselection_timing=per_ue"]),
+    ],
+)
+def test_compiled_period_equals_the_numpy_period_on_the_dense_state(name: str, extra: list[str]) -> None:
+    """The compiled chunk against the numpy chunk from the same state, with the dense pair state."""
+    cfg = apply_overrides(preset(name), ["metrics.record_links=false", *extra])
+    runs = []
+    for compiled in (True, False):
+        sim = Simulator(cfg)
+        assert not sim.sparse_state
+        sim.compiled_period = compiled
+        sim.reset(3, warmup_subframes=350)  # half periods: chunks of part of a period
+        res = sim.run(650)
+        runs.append((sim, res.metrics))
+    (a, ma), (b, mb) = runs
+    assert a.last_links is not None and b.last_links is not None
+    for x, y in zip(a.last_links, b.last_links, strict=True):
+        np.testing.assert_array_equal(x, y)
+    for key in ("bin_n", "bin_decoded", "bin_causes", "node_n", "node_decoded", "bin_expected", "node_expected"):
+        np.testing.assert_array_equal(getattr(ma, key), getattr(mb, key), err_msg=key)
+    np.testing.assert_array_equal(a.resource, b.resource)  # sensing: the same reselections
+    np.testing.assert_array_equal(a._period_sci_mw, b._period_sci_mw)
+    np.testing.assert_array_equal(a._rssi_ring, b._rssi_ring)
+    assert a.n_reselections == b.n_reselections > 0
+    assert ma.n_transmissions == mb.n_transmissions > 0
+
+
+def test_grid_los_is_what_the_geometry_uses() -> None:
+    """The compiled geometry takes the road's corridor LOS for the grid (NLOS pairs lose more)."""
+    sim = Simulator(apply_overrides(preset("paper"), ["metrics.record_links=false"]))
+    sim.reset(2, warmup_subframes=0)
+    geo = sim._period_geometry()
+    hc, vc = sim.road.corridors(geo.positions_m)
+    h = geo.rx.shape[0] // 2
+    los = Road.corridor_los((hc[geo.rx[:h]], vc[geo.rx[:h]]), (hc[geo.tx[:h]], vc[geo.tx[:h]]))
+    np.testing.assert_array_equal(geo.los[:h], los)
+    assert 0 < los.sum() < h  # both kinds on the paper's grid
