@@ -1,14 +1,15 @@
-"""Figures (matplotlib, headless Agg backend). Kept out of ``cv2x_marl.sim``."""
+"""Figures (matplotlib, headless Agg backend). Kept out of ``cv2x_marl.sim``.
+
+Figures are built as :class:`matplotlib.figure.Figure` objects, without ``pyplot``: no global figure
+registry to close, safe in threads and workers, and a lighter import.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
 from cv2x_marl.io import atomic_write
 
@@ -20,21 +21,33 @@ CAUSE_LABELS = {
 }
 
 
+def _subplots(nrows: int = 1, ncols: int = 1, **kw: Any) -> tuple[Figure, Any]:
+    """``pyplot.subplots`` without pyplot: a new :class:`Figure` (``figsize``, ``constrained_layout``, ...)
+    and its axes (one, or an array as ``subplots`` returns); ``sharex`` / ``sharey`` go to the axes."""
+    share = {k: kw.pop(k) for k in ("sharex", "sharey") if k in kw}
+    fig = Figure(**kw)
+    return fig, fig.subplots(nrows, ncols, **share)
+
+
 def plot_prr_vs_distance(summary: dict[str, Any], path: str | Path, title: str = "") -> Path:
-    """PRR vs distance (sampled and expected) over the stacked shares of each loss cause."""
+    """PRR vs distance (sampled and expected) over the stacked shares of each loss cause (one filled
+    step outline per cause over the distance bins: the bars of each bin, drawn as one patch)."""
     rows = summary["prr_vs_distance"]
     loss = summary["loss_causes"]
     d = [r["distance_m"] for r in rows]
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
+    fig = Figure(figsize=(7.5, 4.5))
+    ax = fig.add_subplot()
     bottom = [r["prr"] for r in rows]
     width = (d[1] - d[0]) if len(d) > 1 else 10.0
+    edges = [x - width / 2 for x in d] + [d[-1] + width / 2] if d else [0.0, width]
     colors = {"half_duplex": "#b07aa1", "sensitivity": "#9c755f", "propagation": "#f28e2b", "collision": "#e15759"}
     for cause, label in CAUSE_LABELS.items():
         share = [r[cause] for r in loss]
         if max(share, default=0.0) <= 0.0:
             continue
-        ax.bar(d, share, width=width, bottom=bottom, color=colors[cause], alpha=0.45, label=f"lost: {label}")
-        bottom = [b + s for b, s in zip(bottom, share, strict=True)]
+        top = [b + s for b, s in zip(bottom, share, strict=True)]
+        ax.stairs(top, edges, baseline=bottom, fill=True, color=colors[cause], alpha=0.45, label=f"lost: {label}")
+        bottom = top
     ax.plot(d, [r["prr"] for r in rows], "k-", lw=2, label="PRR (decoded)")
     ax.plot(d, [r["prr_expected"] for r in rows], "b--", lw=1.2, label="PRR (expected)")
     ax.set_xlabel("Tx-Rx distance (m)")
@@ -44,21 +57,13 @@ def plot_prr_vs_distance(summary: dict[str, Any], path: str | Path, title: str =
     ax.grid(alpha=0.3)
     ax.legend(loc="lower left", fontsize=8)
     ax.set_title(title or f"PRR vs distance (mean per-node PRR {summary['prr_mean']:.3f})")
-
-    def save(tmp: Path) -> None:
-        fig.savefig(tmp, format="png", dpi=120)
-
-    try:
-        return atomic_write(path, save)
-    finally:
-        plt.close(fig)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.11, top=0.93)  # fixed margins: no layout solver
+    return _save(fig, path)
 
 
-def _save(fig: Any, path: str | Path) -> Path:
-    try:
-        return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
-    finally:
-        plt.close(fig)
+def _save(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG (120 dpi) to ``path``, atomically (temporary file, then rename)."""
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
 
 
 def plot_surface(model: Any, path: str | Path, nsv_values: tuple[int, ...] = (1, 3, 5)) -> Path:
@@ -68,7 +73,7 @@ def plot_surface(model: Any, path: str | Path, nsv_values: tuple[int, ...] = (1,
     d = np.linspace(10.0, 400.0, 60)
     lgrid = np.linspace(10.0, 200.0, 60)
     dd, ll = np.meshgrid(d, lgrid)
-    fig = plt.figure(figsize=(4.2 * len(nsv_values), 4.0), constrained_layout=True)
+    fig = Figure(figsize=(4.2 * len(nsv_values), 4.0), constrained_layout=True)
     for i, k in enumerate(nsv_values):
         ax = fig.add_subplot(1, len(nsv_values), i + 1, projection="3d")
         p = model.predict(dd, ll, np.full(dd.shape, k))
@@ -91,7 +96,7 @@ def plot_fit_quality(model: Any, path: str | Path) -> Path:
     r2 = np.array([np.nan if s["r2"] is None else s["r2"] for s in model.stats], dtype=float)
     r2t = np.array([np.nan if s["r2_test"] is None else s["r2_test"] for s in model.stats], dtype=float)
     inst = np.array([s["instances"] for s in model.stats])
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
     ax.bar(ks - 0.2, r2, width=0.4, label="R^2 train", color="#4e79a7")
     ax.bar(ks + 0.2, r2t, width=0.4, label="R^2 held out", color="#f28e2b")
     ax.set_xlabel("NSV (last bar: cap and above)")
@@ -131,7 +136,7 @@ def plot_trajectories(
     pos = snapshot.positions_m
     res = snapshot.slot * snapshot.n_subchannels + snapshot.subchannel
     co = (res == res[mover]) & (np.arange(pos.shape[0]) != mover)
-    fig, ax = plt.subplots(figsize=(6.5, 6.0), constrained_layout=True)
+    fig, ax = _subplots(figsize=(6.5, 6.0), constrained_layout=True)
     ax.scatter(pos[target, 0], pos[target, 1], s=45, c="#4e79a7", label="target receivers", zorder=3)
     others = ~target & ~co
     others[mover] = False
@@ -159,7 +164,7 @@ def plot_trajectories(
 
 def plot_gain_curves(runs: dict[str, Any], path: str | Path, case: str, judge: str = "simulator") -> Path:
     """Fig. 6 / Fig. 8: normalised utility gain (eq. 17, scored by the judge) against the iteration."""
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
     for name, r in runs.items():
         color, label = METHOD_STYLE[name]
         u = r.utility_curve[:, 0]
@@ -180,7 +185,7 @@ def plot_realization_gains(runs: dict[str, Any], path: str | Path, judge: str = 
 
     first = runs.get("gbmu", next(iter(runs.values())))
     order = np.argsort(first.utility_gain)
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
+    fig, axes = _subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
     x = np.arange(order.size)
     for ax, attr, title in ((axes[0], "utility_gain", "utility (eq. 12)"), (axes[1], "prr_gain", "PRR")):
         for name, r in runs.items():
@@ -205,7 +210,7 @@ def plot_method_comparison(table: list[dict[str, Any]], path: str | Path, title:
     import numpy as np
 
     names = [r["method"] for r in table]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), constrained_layout=True)
+    fig, axes = _subplots(1, 3, figsize=(12, 3.8), constrained_layout=True)
     for ax, key, label in (
         (axes[0], "mean_utility_gain", "mean utility gain (eq. 17), %"),
         (axes[1], "effectiveness", "effectiveness (utility up), %"),
@@ -226,7 +231,7 @@ def plot_method_comparison(table: list[dict[str, Any]], path: str | Path, title:
 
 def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | Path, title: str) -> Path:
     """PPO's evaluation utility gain during training (one line per seed) against GBMU's."""
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
     gbmu = None
     for name, rows in sorted(curves.items()):
         t = [r["timesteps"] for r in rows]
@@ -245,7 +250,7 @@ def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | 
 def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
     """Held-out utility gain per grid point of a sweep: mean +- std bar, one dot per training seed."""
     points = result["points"]
-    fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(points) + 2.5), 4.0), constrained_layout=True)
+    fig, ax = _subplots(figsize=(max(5.0, 1.2 * len(points) + 2.5), 4.0), constrained_layout=True)
     for i, p in enumerate(points):
         gains = [
             100 * t["mean_utility_gain"]

@@ -112,14 +112,15 @@ def simulate(
     Args:
         links: the links table: ``on`` as ``metrics.record_links`` says, ``off`` never, ``auto`` (the
             CLI's default) as ``metrics.record_links`` says up to :data:`AUTO_LINKS_MAX_ROWS` expected
-            rows, skipped above (the summary's ``links_table`` says so and why).
+            rows, skipped above (the summary's ``links_table`` says so and why). Without ``out_dir``
+            the table is never built (nowhere to write it), whatever ``links`` says.
     """
     from cv2x_marl.config import apply_overrides
 
     if links not in LINKS_CHOICES:
         raise ValueError(f"links must be one of {', '.join(LINKS_CHOICES)}, got {links!r}")
     note: dict[str, Any] | None = None
-    if links == "off" and cfg.metrics.record_links:
+    if (links == "off" or out_dir is None) and cfg.metrics.record_links:  # no folder: nowhere to write it
         cfg = apply_overrides(cfg, ["metrics.record_links=false"])
     elif links == "auto" and cfg.metrics.record_links and out_dir is not None:
         rows = expected_link_rows(cfg, n_subframes)

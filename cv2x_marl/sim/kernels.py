@@ -705,10 +705,16 @@ def period_chunk(
     bin_m: float,
     n_bins: int,
     n_causes: int,
+    links: NDArray[np.int64],
+    total: FloatArray,
     sci_rng: np.random.Generator,
     sci_sinr_lin: FloatArray,
     sci_bler: FloatArray,
     sci_offset_db: float,
+    n_sub: int,
+    flat_inband_lin: float,
+    total_slot: FloatArray,
+    leakage: FloatArray,
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.int64],
@@ -753,10 +759,23 @@ def period_chunk(
         period_rssi_mw: [N * n_res] the period's S-RSSI sums, updated in place.
         period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW), in place.
         bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
+        links: the indices of the links whose transmitter is active, increasing (from
+            :func:`active_links`: a chunk of a few transmitters visits only their links); empty: every
+            link, each checked against ``active``.
+        total: [N * n_res] zeros, a scratch for the power sums: left zero again on return.
         sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
             draw per active link, as ``Simulator._sci_decoded``), the PSCCH BLER curve (points in linear
             SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
             only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
+        n_sub: subchannels per subframe (resource ``r`` is slot ``r // n_sub``, subchannel ``r % n_sub``).
+        flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
+            the power of the subframe's other subchannels adds to the interference); 0: none.
+        total_slot: [N * RRI] zeros, the scratch for the flat model's power per receiver and subframe
+            (summed link by link, as the numpy path's ``bincount``): left zero again on return.
+        leakage: [n_sub, n_sub] the 3gpp in-band leakage ``M[victim, interferer]``
+            (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
+            ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
+            ``Simulator._chunk``), adds to the interference and to the S-RSSI.
 
     Returns:
         ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n, bin_decoded,
@@ -764,16 +783,24 @@ def period_chunk(
         node_decoded, node_expected`` [N].
     """
     n = active.shape[0]
-    total = np.zeros(n * n_res)
+    subset = links.shape[0] > 0
+    n_visit = links.shape[0] if subset else rx.shape[0]
     n_links = 0
-    for k in range(rx.shape[0]):
+    for q in range(n_visit):
+        k = links[q] if subset else q
         t = tx[k]
         if active[t]:
             total[rx[k] * n_res + resource[t]] += rx_mw[k]
             n_links += 1
-    for q in range(total.shape[0]):
-        if total[q] != 0.0:
-            period_rssi_mw[q] += total[q]
+    flat = flat_inband_lin > 0.0
+    three_gpp = leakage.shape[0] > 0
+    rri = n_res // n_sub
+    if flat:
+        for q in range(n_visit):
+            k = links[q] if subset else q
+            t = tx[k]
+            if active[t]:
+                total_slot[rx[k] * rri + resource[t] // n_sub] += rx_mw[k]
     out_tx = np.empty(n_links, dtype=np.int64)
     out_rx = np.empty(n_links, dtype=np.int64)
     p_out = np.empty(n_links)
@@ -792,7 +819,8 @@ def period_chunk(
     sens_lin = 10.0 ** (sensitivity_dbm / 10.0)  # 0.0 for -inf
     sci_sinr = sci_bler.shape[0] > 0
     m = 0
-    for k in range(rx.shape[0]):
+    for q in range(n_visit):
+        k = links[q] if subset else q
         t = tx[k]
         if not active[t]:
             continue
@@ -800,6 +828,10 @@ def period_chunk(
         key = r * n_res + resource[t]
         s = rx_mw[k]
         i_mw = max(total[key] - s, 0.0)
+        if flat:
+            i_mw = i_mw + flat_inband_lin * max(total_slot[r * rri + resource[t] // n_sub] - total[key], 0.0)
+        if three_gpp:
+            i_mw = i_mw + _leak_mw(total, key - resource[t] % n_sub, leakage, resource[t] % n_sub, n_sub)
         u = link_rng.random()
         ratio = s / (i_mw + noise_mw)
         p = _success_of_ratio(ratio, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
@@ -845,7 +877,95 @@ def period_chunk(
             node_dec[t] += outcome
             node_exp[t] += p
         m += 1
+    # the chunk's S-RSSI into the period's (the numpy path adds the whole array: the other entries are
+    # zero; 3gpp: then the leakage, into every subchannel of a subframe that heard something), and the
+    # scratches zeroed again; each touched entry once
+    leak_row = np.empty(n_sub)
+    for q in range(n_visit):
+        k = links[q] if subset else q
+        t = tx[k]
+        if not active[t]:
+            continue
+        key = rx[k] * n_res + resource[t]
+        if flat:
+            total_slot[rx[k] * rri + resource[t] // n_sub] = 0.0
+        if three_gpp:
+            base = key - resource[t] % n_sub
+            fresh = False
+            for v in range(n_sub):
+                fresh = fresh or total[base + v] != 0.0
+            if fresh:  # this receiver's subframe not yet added
+                for v in range(n_sub):
+                    leak_row[v] = _leak_mw(total, base, leakage, v, n_sub)
+                for v in range(n_sub):
+                    period_rssi_mw[base + v] = (period_rssi_mw[base + v] + total[base + v]) + leak_row[v]
+                    total[base + v] = 0.0
+        elif total[key] != 0.0:
+            period_rssi_mw[key] += total[key]
+            total[key] = 0.0
     return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+
+
+@njit(cache=True)
+def _leak_mw(total: FloatArray, base: int, leakage: FloatArray, victim: int, n_sub: int) -> float:
+    """In-band leakage into subchannel ``victim`` of one receiver's subframe: ``sum_i M[victim, i]
+    total[base + i]``, summed in ``i`` order (``Simulator._inband_leakage``'s arithmetic)."""
+    acc = total[base] * leakage[victim, 0]
+    for i in range(1, n_sub):
+        acc = acc + total[base + i] * leakage[victim, i]
+    return acc
+
+
+@njit(cache=True)
+def links_by_transmitter(tx: NDArray[np.int64], n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The period's links grouped by transmitter (a counting sort, ``O(L + N)``).
+
+    Args:
+        tx: [L] the transmitter of each link.
+        n: N.
+
+    Returns:
+        ``start`` [N + 1] and ``index`` [L]: the links of transmitter ``t`` are
+        ``index[start[t]:start[t + 1]]``, increasing.
+    """
+    start = np.zeros(n + 1, dtype=np.int64)
+    for k in range(tx.shape[0]):
+        start[tx[k] + 1] += 1
+    for t in range(n):
+        start[t + 1] += start[t]
+    fill = start[:-1].copy()
+    index = np.empty(tx.shape[0], dtype=np.int64)
+    for k in range(tx.shape[0]):
+        t = tx[k]
+        index[fill[t]] = k
+        fill[t] += 1
+    return start, index
+
+
+@njit(cache=True)
+def active_links(start: NDArray[np.int64], index: NDArray[np.int64], senders: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The links of the transmitters ``senders``, in increasing link order (the order the numpy period
+    visits them in), from :func:`links_by_transmitter`'s grouping.
+
+    Args:
+        start, index: :func:`links_by_transmitter`.
+        senders: [A] the transmitters of a chunk.
+
+    Returns:
+        [L_A] link indices, increasing.
+    """
+    count = 0
+    for a in range(senders.shape[0]):
+        count += start[senders[a] + 1] - start[senders[a]]
+    out = np.empty(count, dtype=np.int64)
+    m = 0
+    for a in range(senders.shape[0]):
+        t = senders[a]
+        for q in range(start[t], start[t + 1]):
+            out[m] = index[q]
+            m += 1
+    out.sort()
+    return out
 
 
 @njit(cache=True)

@@ -231,6 +231,9 @@ class _Geometry:
     mean_rx_dbm: FloatArray
     rx_mw: FloatArray
     rel_speed_mps: FloatArray
+    #: the links grouped by transmitter (kernels.links_by_transmitter), built when a chunk needs them
+    tx_start: IntArray | None = None
+    tx_index: IntArray | None = None
 
 
 class Simulator:
@@ -347,6 +350,10 @@ class Simulator:
             self._decide_releases()
         self.subframe = 0
         self._rssi_ring = np.full((self._sensing_periods, self.n, self.n_res), np.nan, dtype=np.float32)
+        #: the compiled chunk's scratch for the power sums per receiver and resource (zero between chunks)
+        self._chunk_total = np.zeros(self.n * self.n_res)
+        #: ... and for the flat in-band model's power per receiver and subframe
+        self._chunk_total_slot = np.zeros(self.n * self.rri if self.config.link.inband_emission_db is not None else 0)
         self._new_period_buffers()
         if self._per_ue:
             #: [N * R] strongest decoded SCI of the period before the current one (per_ue sensing), mW
@@ -651,7 +658,7 @@ class Simulator:
         active = (slot >= lo) & (slot < hi)
         if not np.any(active):
             return
-        if self.compiled_period and cols is None and cfg.link.model != "rayleigh" and not cfg.link.has_inband_emission:
+        if self.compiled_period and cols is None and cfg.link.model != "rayleigh":
             self._chunk_compiled(geo, active, acc)
             return
         sel = active[geo.tx]
@@ -667,7 +674,7 @@ class Simulator:
             i_mw = i_mw + db_to_linear(cfg.link.inband_emission_db) * np.maximum(total_slot[slot_key] - total[key], 0.0)
         leak_mw: FloatArray | None = None
         if self._leakage is not None:  # 3gpp: leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]
-            leak_mw = (total.reshape(self.n * self.rri, self.n_sub) @ self._leakage.T).reshape(-1)
+            leak_mw = self._inband_leakage(total)
             i_mw = i_mw + leak_mw[key]
         hd = slot[rx] == slot[tx]
         sinr_db = 10.0 * np.log10(s_mw / (i_mw + self.noise_mw))
@@ -747,8 +754,8 @@ class Simulator:
             cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
 
     def _chunk_compiled(self, geo: _Geometry, active: NDArray[np.bool_], acc: PrrAccumulator | None) -> None:
-        """:meth:`_chunk` in two compiled passes over the period's pairs (:func:`kernels.period_chunk`; no links
-        table, ``link.model`` per_table or threshold, no in-band emission of either model): the same draws
+        """:meth:`_chunk` in compiled passes over the chunk's links (:func:`kernels.period_chunk`; no links
+        table, ``link.model`` per_table or threshold, either in-band emission model): the same draws
         from the same streams, the same sums in the same order, the dB values and the PER and PSCCH
         interpolation with numpy's formulas, taken only where a comparison needs them; tested equal to the
         numpy path (``tests/sim/test_scale.py``, ``tests/sim/test_sci_decoding.py``)."""
@@ -782,14 +789,49 @@ class Simulator:
             acc.bin_m if acc is not None else 1.0,
             nb,
             len(CAUSE_CODE),
+            self._chunk_links(geo, active),
+            self._chunk_total,
             self._sci_rng if self._sci_rng is not None else self.rng.link,
             sci_lin,
             sci_bler,
             float(cfg.sps.sci_sinr_offset_db),
+            self.n_sub,
+            float(db_to_linear(cfg.link.inband_emission_db)) if cfg.link.inband_emission_db is not None else 0.0,
+            self._chunk_total_slot,
+            self._leakage if self._leakage is not None else np.empty((0, 0)),
         )
         self.last_links = (tx, rx, p, cause)
         if acc is not None:
             acc.add_counts(int(active.sum()), bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp)
+
+    def _inband_leakage(self, total: FloatArray) -> FloatArray:
+        """``link.inband_emission_model=3gpp``: the leakage into each resource of each receiver,
+        ``leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]`` (mW, [N * R]), summed in ``i`` order
+        element by element (so the compiled chunk's ``kernels._leak_mw`` gives the same bits; a BLAS
+        product may sum in another order).
+
+        Args:
+            total: [N * R] power per receiver and resource of the chunk, mW.
+        """
+        assert self._leakage is not None
+        t2 = total.reshape(self.n * self.rri, self.n_sub)
+        m = self._leakage
+        leak = t2[:, :1] * m[:, 0]
+        for i in range(1, self.n_sub):
+            leak = leak + t2[:, i : i + 1] * m[:, i]
+        return leak.reshape(-1)
+
+    def _chunk_links(self, geo: _Geometry, active: NDArray[np.bool_]) -> IntArray:
+        """The links of a chunk with few transmitters (under a quarter of the vehicles: the parts of a
+        period that ``sps.reselection_timing=per_ue`` cuts, a run that ends mid-period), increasing;
+        empty (the kernel visits every link) otherwise. The grouping by transmitter is built once per
+        period, on the first such chunk."""
+        senders = np.flatnonzero(active)
+        if 4 * senders.shape[0] >= self.n:
+            return np.empty(0, dtype=np.int64)
+        if geo.tx_start is None or geo.tx_index is None:
+            geo.tx_start, geo.tx_index = kernels.links_by_transmitter(geo.tx, self.n)
+        return kernels.active_links(geo.tx_start, geo.tx_index, senders)
 
     def _sci_decoded(self, sinr_db: FloatArray) -> NDArray[np.bool_]:
         """``sps.sci_decoding=sinr``: whether each link's receiver decodes the transmitter's SCI.

@@ -202,3 +202,42 @@ def test_grid_los_is_what_the_geometry_uses() -> None:
     los = Road.corridor_los((hc[geo.rx[:h]], vc[geo.rx[:h]]), (hc[geo.tx[:h]], vc[geo.tx[:h]]))
     np.testing.assert_array_equal(geo.los[:h], los)
     assert 0 < los.sum() < h  # both kinds on the paper's grid
+
+
+def test_links_grouped_by_transmitter_and_a_chunks_links_in_order() -> None:
+    tx = np.array([2, 0, 2, 1, 0, 2, 3], dtype=np.int64)
+    start, index = kernels.links_by_transmitter(tx, 5)
+    np.testing.assert_array_equal(start, [0, 2, 3, 6, 7, 7])  # vehicle 4 sends on no link
+    np.testing.assert_array_equal(index, [1, 4, 3, 0, 2, 5, 6])
+    np.testing.assert_array_equal(kernels.active_links(start, index, np.array([2, 0])), [0, 1, 2, 4, 5])
+    np.testing.assert_array_equal(kernels.active_links(start, index, np.array([4])), np.empty(0))
+    rng = np.random.default_rng(0)
+    tx = rng.integers(0, 50, 3000)
+    start, index = kernels.links_by_transmitter(tx, 50)
+    senders = np.flatnonzero(rng.random(50) < 0.2)
+    np.testing.assert_array_equal(kernels.active_links(start, index, senders), np.flatnonzero(np.isin(tx, senders)))
+
+
+def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks() -> None:
+    """Runs cut every 7 subframes: each chunk has a few transmitters, so the compiled chunk visits only
+    their links (Simulator._chunk_links); the same results as the numpy chunks."""
+    cfg = apply_overrides(preset("highway"), ["road.length_m=2000", "metrics.record_links=false"])
+    out = []
+    for compiled in (True, False):
+        sim = Simulator(cfg)
+        sim.compiled_period = compiled
+        sim.reset(5, warmup_subframes=100)
+        geo = sim._period_geometry()
+        assert sim._chunk_links(geo, sim.slot < 7).shape[0] > 0  # the subset path is the one taken
+        sums = [sim.run(7).metrics for _ in range(60)]
+        out.append((sim, sums))
+    (a, ma), (b, mb) = out
+    for x, y in zip(ma, mb, strict=True):
+        np.testing.assert_array_equal(x.bin_decoded, y.bin_decoded)
+        np.testing.assert_array_equal(x.node_expected, y.node_expected)
+    assert a.last_links is not None and b.last_links is not None
+    for x, y in zip(a.last_links, b.last_links, strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a._rssi_ring, b._rssi_ring)
+    np.testing.assert_array_equal(a.resource, b.resource)
+    assert a.n_reselections == b.n_reselections > 0
