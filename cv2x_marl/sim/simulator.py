@@ -33,7 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -804,7 +804,7 @@ class Simulator:
         if acc is not None:
             acc.add_counts(int(active.sum()), bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp)
 
-    def _inband_leakage(self, total: FloatArray) -> FloatArray:
+    def _inband_leakage(self, total: NDArray[Any]) -> FloatArray:
         """``link.inband_emission_model=3gpp``: the leakage into each resource of each receiver,
         ``leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]`` (mW, [N * R]), summed in ``i`` order
         element by element (so the compiled chunk's ``kernels._leak_mw`` gives the same bits; a BLAS
