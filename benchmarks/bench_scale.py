@@ -12,7 +12,7 @@ LOS path loss of the preset, no shadowing) is ``--below-noise-db`` (10 dB) under
 noise at 5.9 GHz, h' = 1.5 m) that is about 2.8 km, where the preset's own default (1 km) leaves
 the received power 8 dB above noise. ``--max-range-m`` sets it directly.
 
-Run with ``python benchmarks/bench_scale.py [--sizes 1000 2000 5000 10000] [--label before]``;
+Run with ``python benchmarks/bench_scale.py [--sizes 1000 2000 5000 10000] [--preset highway-3gpp] [--label before]``;
 prints a markdown table and writes ``benchmarks/results/bench_scale.json`` (rows are merged by
 label, so a ``before`` and an ``after`` run sit side by side). Single-threaded BLAS is forced so
 the figures are per core.
@@ -39,12 +39,14 @@ import numpy as np  # noqa: E402
 DENSITY = 0.1  # veh/m
 
 
-def config_for(n_vehicles: int, max_range_m: float, warmup_s: float):  # type: ignore[no-untyped-def]
-    """The highway preset with ``n_vehicles`` at 0.1 veh/m, the cut-off, links table off."""
+def config_for(n_vehicles: int, max_range_m: float, warmup_s: float, name: str = "highway"):  # type: ignore[no-untyped-def]
+    """The preset ``name`` (highway or highway-3gpp) with ``n_vehicles`` at 0.1 veh/m, the cut-off, links
+    table off; ``warmup_s`` of fixed warm-up (highway-3gpp: the warm-up runs until every vehicle has
+    reselected once, at least ``warmup_s``)."""
     from cv2x_marl.config import apply_overrides, preset
 
     return apply_overrides(
-        preset("highway"),
+        preset(name),
         [
             f"road.length_m={n_vehicles / DENSITY}",
             f"link.max_range_m={max_range_m}",
@@ -72,7 +74,7 @@ def cutoff_m(below_noise_db: float) -> float:
     return round(lo, 1)
 
 
-def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float) -> dict:
+def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float, name: str = "highway") -> dict:
     """One measurement, in this process: returns the row (peak RSS of this process included)."""
     t0 = time.perf_counter()
     from cv2x_marl.sim import Simulator
@@ -80,7 +82,7 @@ def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float
 
     t_import = time.perf_counter() - t0
     rss_import = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    cfg = config_for(n_vehicles, max_range_m, warmup_s)
+    cfg = config_for(n_vehicles, max_range_m, warmup_s, name)
     n_sub = round(measure_s * 1000)
     est = estimate_memory_bytes(cfg, n_sub)["total"]
     t0 = time.perf_counter()
@@ -92,12 +94,14 @@ def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float
     t_run = time.perf_counter() - t0
     del snap
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: kB
-    simulated = warmup_s + measure_s
+    simulated = sim.subframe / 1000.0  # warm-up (until_reselected: as long as it took) + measured
     return {
         "n_vehicles": cfg.n_vehicles,
         "road_m": cfg.road.length_m,
         "max_range_m": max_range_m,
+        "preset": name,
         "warmup_s": warmup_s,
+        "simulated_s": simulated,
         "measured_s": measure_s,
         "import_s": t_import,
         "init_reset_warmup_s": t_reset,
@@ -119,22 +123,25 @@ def main() -> None:
     ap.add_argument("--measure-s", type=float, default=1.0, help="simulated measurement (s)")
     ap.add_argument("--below-noise-db", type=float, default=10.0)
     ap.add_argument("--max-range-m", type=float, default=None, help="cut-off (m); default from --below-noise-db")
+    ap.add_argument("--preset", default="highway", choices=["highway", "highway-3gpp"], help="scenario preset")
     ap.add_argument("--label", default="current", help="name of this set of rows in the JSON (e.g. before, after)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_scale.json"))
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     max_range = args.max_range_m if args.max_range_m is not None else cutoff_m(args.below_noise_db)
     if args.child is not None:
-        print(json.dumps(child(args.child, max_range, args.warmup_s, args.measure_s)))
+        print(json.dumps(child(args.child, max_range, args.warmup_s, args.measure_s, args.preset)))
         return
 
     print(f"cut-off link.max_range_m = {max_range:g} m; warm-up {args.warmup_s:g} s, measured {args.measure_s:g} s")
-    print("\n| vehicles | init+reset+warm-up (s) | run (s) | wall s per simulated s | peak RSS (MB) | estimate (MB) |")
-    print("|---:|---:|---:|---:|---:|---:|")
+    print(f"preset {args.preset}")
+    head = "| vehicles | simulated (s) | init+reset+warm-up (s) | run (s) | wall s per simulated s | peak RSS (MB) |"
+    print("\n" + head + " estimate (MB) |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
     rows = []
     for n in args.sizes:
         cmd = [sys.executable, __file__, "--child", str(n), "--max-range-m", str(max_range)]
-        cmd += ["--warmup-s", str(args.warmup_s), "--measure-s", str(args.measure_s)]
+        cmd += ["--warmup-s", str(args.warmup_s), "--measure-s", str(args.measure_s), "--preset", args.preset]
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if proc.returncode != 0:
             print(f"| {n} | failed: {proc.stderr.strip().splitlines()[-1:]} |")
@@ -143,7 +150,7 @@ def main() -> None:
         r = json.loads(proc.stdout.strip().splitlines()[-1])
         rows.append(r)
         print(
-            f"| {r['n_vehicles']} | {r['init_reset_warmup_s']:.2f} | {r['run_s']:.2f} | "
+            f"| {r['n_vehicles']} | {r['simulated_s']:.2f} | {r['init_reset_warmup_s']:.2f} | {r['run_s']:.2f} | "
             f"{r['wall_s_per_simulated_s']:.2f} | {r['peak_rss_bytes'] / 1e6:.0f} | "
             f"{r['memory_estimate_bytes'] / 1e6:.0f} |"
         )

@@ -879,31 +879,57 @@ def period_chunk(
         m += 1
     # the chunk's S-RSSI into the period's (the numpy path adds the whole array: the other entries are
     # zero; 3gpp: then the leakage, into every subchannel of a subframe that heard something), and the
-    # scratches zeroed again; each touched entry once
+    # scratches zeroed again: a chunk of a few transmitters visits its links (each receiver's subframe
+    # once), a larger one scans the arrays in order (cheaper than reaching them link by link)
     leak_row = np.empty(n_sub)
-    for q in range(n_visit):
-        k = links[q] if subset else q
-        t = tx[k]
-        if not active[t]:
-            continue
-        key = rx[k] * n_res + resource[t]
+    if subset:
+        for q in range(n_visit):
+            k = links[q]
+            t = tx[k]
+            if not active[t]:
+                continue
+            key = rx[k] * n_res + resource[t]
+            if flat:
+                total_slot[rx[k] * rri + resource[t] // n_sub] = 0.0
+            _commit_rssi(total, period_rssi_mw, key - resource[t] % n_sub, leakage, n_sub, three_gpp, leak_row)
+    else:
+        for base in range(0, n * n_res, n_sub):
+            _commit_rssi(total, period_rssi_mw, base, leakage, n_sub, three_gpp, leak_row)
         if flat:
-            total_slot[rx[k] * rri + resource[t] // n_sub] = 0.0
-        if three_gpp:
-            base = key - resource[t] % n_sub
-            fresh = False
-            for v in range(n_sub):
-                fresh = fresh or total[base + v] != 0.0
-            if fresh:  # this receiver's subframe not yet added
-                for v in range(n_sub):
-                    leak_row[v] = _leak_mw(total, base, leakage, v, n_sub)
-                for v in range(n_sub):
-                    period_rssi_mw[base + v] = (period_rssi_mw[base + v] + total[base + v]) + leak_row[v]
-                    total[base + v] = 0.0
-        elif total[key] != 0.0:
-            period_rssi_mw[key] += total[key]
-            total[key] = 0.0
+            total_slot[:] = 0.0
     return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+
+
+@njit(cache=True)
+def _commit_rssi(
+    total: FloatArray,
+    period_rssi_mw: FloatArray,
+    base: int,
+    leakage: FloatArray,
+    n_sub: int,
+    three_gpp: bool,
+    leak_row: FloatArray,
+) -> None:
+    """Add one receiver's subframe (``total[base : base + n_sub]``) to the period's S-RSSI and zero it:
+    ``rssi + total`` entry by entry, then (3gpp) ``+ leak`` into every subchannel of a subframe that
+    heard something (the numpy path's ``rssi += total; rssi += leak``: the same bits); ``leak_row`` [n_sub]
+    is scratch."""
+    if three_gpp:
+        heard = False
+        for v in range(n_sub):
+            heard = heard or total[base + v] != 0.0
+        if not heard:
+            return
+        for v in range(n_sub):
+            leak_row[v] = _leak_mw(total, base, leakage, v, n_sub)
+        for v in range(n_sub):
+            period_rssi_mw[base + v] = (period_rssi_mw[base + v] + total[base + v]) + leak_row[v]
+            total[base + v] = 0.0
+        return
+    for v in range(n_sub):
+        if total[base + v] != 0.0:
+            period_rssi_mw[base + v] += total[base + v]
+            total[base + v] = 0.0
 
 
 @njit(cache=True)
