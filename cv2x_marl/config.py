@@ -413,6 +413,13 @@ class SpsConfig(Section):
         -20.0,
         20.0,
     )
+    sci_gates_pssch: bool = _key(
+        False,
+        "With sci_decoding=sinr: a receiver that misses the SCI cannot decode the PSSCH it schedules (SCI format "
+        "1 carries the PSSCH's frequency resources and MCS, TS 36.212 5.4.3.1.2): a packet is received only if "
+        "both decode (P = P_PSSCH x P_SCI, one draw each); false: the PSSCH outcome alone, the SCI only steering "
+        "the sensing (the model so far)",
+    )
 
     def _check(self) -> None:
         if self.counter_min > self.counter_max:
@@ -423,6 +430,11 @@ class SpsConfig(Section):
             raise ConfigError(
                 f"sps.sci_sinr_offset_db ({self.sci_sinr_offset_db:g}) applies to the PSCCH SINR of "
                 "sps.sci_decoding=sinr only: set sps.sci_decoding=sinr or sps.sci_sinr_offset_db=0"
+            )
+        if self.sci_gates_pssch and self.sci_decoding != "sinr":
+            raise ConfigError(
+                "sps.sci_gates_pssch=true needs the SCI draws of sps.sci_decoding=sinr (it is "
+                f"{self.sci_decoding!r}): set sps.sci_decoding=sinr or sps.sci_gates_pssch=false"
             )
 
 
@@ -666,6 +678,7 @@ PRESETS["highway-3gpp"] = {
         "reservation_signalling": "standard",
         "reselection_timing": "per_ue",
         "sci_decoding": "sinr",
+        "sci_gates_pssch": True,
     },
     "link": {**PRESETS["highway"]["link"], "per_interpolation": "log", "inband_emission_model": "3gpp"},
     "channel": {**PRESETS["highway"]["channel"], "shadowing_correlation": "pair_distance"},

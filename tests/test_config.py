@@ -76,6 +76,7 @@ def test_highway_3gpp_preset_is_highway_with_every_standard_switch() -> None:
         ("sps", "reservation_signalling"): "standard",
         ("sps", "reselection_timing"): "per_ue",
         ("sps", "sci_decoding"): "sinr",
+        ("sps", "sci_gates_pssch"): True,
         ("link", "per_interpolation"): "log",
         ("link", "inband_emission_model"): "3gpp",
         ("channel", "shadowing_correlation"): "pair_distance",

@@ -711,6 +711,7 @@ def period_chunk(
     sci_sinr_lin: FloatArray,
     sci_bler: FloatArray,
     sci_offset_db: float,
+    sci_gates_pssch: bool,
     n_sub: int,
     flat_inband_lin: float,
     total_slot: FloatArray,
@@ -764,9 +765,11 @@ def period_chunk(
             link, each checked against ``active``.
         total: [N * n_res] zeros, a scratch for the power sums: left zero again on return.
         sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
-            draw per active link, as ``Simulator._sci_decoded``), the PSCCH BLER curve (points in linear
+            draw per active link, as ``Simulator._sci_draws``), the PSCCH BLER curve (points in linear
             SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
             only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
+        sci_gates_pssch: ``sps.sci_gates_pssch``: a link succeeds only if its SCI decodes too (``P`` times
+            the SCI's decoding probability; ``P0`` likewise with the SCI at the SNR).
         n_sub: subchannels per subframe (resource ``r`` is slot ``r // n_sub``, subchannel ``r % n_sub``).
         flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
             the power of the subframe's other subchannels adds to the interference); 0: none.
@@ -836,10 +839,21 @@ def period_chunk(
         ratio = s / (i_mw + noise_mw)
         p = _success_of_ratio(ratio, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
         outcome = u < p
+        sci_decoded = True
+        u_sci = 0.0
+        if sci_sinr:  # the SCI draw is taken for every link, as the numpy path's
+            p_sci = _sci_probability(ratio, sci_offset_db, sci_sinr_lin, sci_bler)
+            u_sci = sci_rng.random()
+            sci_decoded = u_sci < p_sci
+            if sci_gates_pssch:  # the PSSCH needs its SCI: both decode, P the product
+                outcome = outcome and sci_decoded
+                p = p * p_sci
         would0 = True  # read only when the link fails: then P0 decides propagation or collision
         if not outcome:
             p0 = _success_of_ratio(s / noise_mw, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
             would0 = u < p0
+            if sci_gates_pssch:
+                would0 = would0 and u_sci < _sci_probability(s / noise_mw, sci_offset_db, sci_sinr_lin, sci_bler)
         hd = slot[r] == slot[t]
         below = sensitivity_dbm > -np.inf and _db_below(s, sens_lin, sensitivity_dbm)
         fail = hd or below
@@ -853,13 +867,7 @@ def period_chunk(
             c = 2
         if hd:
             c = 1
-        sci = not fail and not releasing[t]
-        if sci_sinr:  # the draw is taken for every link, as the numpy path's
-            x = 10.0 * math.log10(ratio) + sci_offset_db
-            ok = 0.0
-            if not math.isnan(x):
-                ok = 1.0 - _interp_clamped(10.0 ** (x / 10.0), sci_sinr_lin, sci_bler, 1.0, sci_bler[-1])
-            sci = sci_rng.random() < ok and sci
+        sci = not fail and not releasing[t] and sci_decoded
         if sci and s > period_sci_mw[key]:
             period_sci_mw[key] = s
         out_tx[m] = t
@@ -898,6 +906,16 @@ def period_chunk(
         if flat:
             total_slot[:] = 0.0
     return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+
+
+@njit(cache=True)
+def _sci_probability(ratio: float, offset_db: float, sinr_lin: FloatArray, bler: FloatArray) -> float:
+    """``1 - BLER(10 log10(ratio) + offset)`` of the PSCCH curve (points ``sinr_lin`` in linear units),
+    :meth:`cv2x_marl.sim.link.PscchCurve.decoding_probability`'s arithmetic (0 for NaN)."""
+    x = 10.0 * math.log10(ratio) + offset_db
+    if math.isnan(x):
+        return 0.0
+    return 1.0 - _interp_clamped(10.0 ** (x / 10.0), sinr_lin, bler, 1.0, bler[-1])
 
 
 @njit(cache=True)

@@ -703,6 +703,13 @@ class Simulator:
             outcome, would0 = sinr_db >= theta, snr_db >= theta
         else:
             outcome, would0 = u < p, u < p0
+        sci_ok: NDArray[np.bool_] | None = None
+        if self.pscch_curve is not None:  # sps.sci_decoding=sinr: one SCI draw per link
+            u_sci, q = self._sci_draws(sinr_db)
+            sci_ok = u_sci < q
+            if cfg.sps.sci_gates_pssch:  # the PSSCH needs its SCI: both decode, P the product
+                q0 = self.pscch_curve.decoding_probability(snr_db + cfg.sps.sci_sinr_offset_db)
+                outcome, would0, p = outcome & sci_ok, would0 & (u_sci < q0), p * q
         below = np.zeros(n_links, dtype=bool)
         if cfg.radio.sensitivity_dbm is not None:
             below = rx_dbm < cfg.radio.sensitivity_dbm
@@ -721,8 +728,8 @@ class Simulator:
         if leak_mw is not None:  # 3gpp: S-RSSI is the energy in the subchannel, leakage included (as WiLabV2Xsim)
             self._period_rssi += leak_mw
         sci = ~fail & ~self._releasing[tx]  # a UE's last SCI before reselecting reserves nothing (standard)
-        if self.pscch_curve is not None:  # sps.sci_decoding=sinr: only a decoded PSCCH reserves
-            sci &= self._sci_decoded(sinr_db)
+        if sci_ok is not None:  # sps.sci_decoding=sinr: only a decoded PSCCH reserves
+            sci &= sci_ok
         np.maximum.at(self._period_sci_mw, key[sci], s_mw[sci])
 
         if acc is not None:
@@ -795,6 +802,7 @@ class Simulator:
             sci_lin,
             sci_bler,
             float(cfg.sps.sci_sinr_offset_db),
+            bool(cfg.sps.sci_gates_pssch),
             self.n_sub,
             float(db_to_linear(cfg.link.inband_emission_db)) if cfg.link.inband_emission_db is not None else 0.0,
             self._chunk_total_slot,
@@ -822,18 +830,18 @@ class Simulator:
         return leak.reshape(-1)
 
     def _chunk_links(self, geo: _Geometry, active: NDArray[np.bool_]) -> IntArray:
-        """The links of a chunk with few transmitters (under a quarter of the vehicles: the parts of a
-        period that ``sps.reselection_timing=per_ue`` cuts, a run that ends mid-period), increasing;
-        empty (the kernel visits every link) otherwise. The grouping by transmitter is built once per
-        period, on the first such chunk."""
+        """The links of a chunk with fewer transmitters than half the vehicles (the parts of a period
+        that ``sps.reselection_timing=per_ue`` cuts, a run that ends mid-period), increasing; empty (the
+        kernel visits every link and scans the N x R sums) otherwise. The grouping by transmitter is
+        built once per period, on the first such chunk."""
         senders = np.flatnonzero(active)
-        if 4 * senders.shape[0] >= self.n:
+        if 2 * senders.shape[0] >= self.n:
             return np.empty(0, dtype=np.int64)
         if geo.tx_start is None or geo.tx_index is None:
             geo.tx_start, geo.tx_index = kernels.links_by_transmitter(geo.tx, self.n)
         return kernels.active_links(geo.tx_start, geo.tx_index, senders)
 
-    def _sci_decoded(self, sinr_db: FloatArray) -> NDArray[np.bool_]:
+    def _sci_draws(self, sinr_db: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``sps.sci_decoding=sinr``: whether each link's receiver decodes the transmitter's SCI.
 
         The PSCCH (2 RBs of the subchannel next to the PSSCH in the same subframe, TS 36.211 9.4, pools
@@ -847,11 +855,11 @@ class Simulator:
             sinr_db: [L] the PSSCH SINR of the chunk's links, in link order (dB).
 
         Returns:
-            [L] bool, decoded.
+            ``u`` [L] the uniforms and ``q`` [L] the decoding probabilities: decoded iff ``u < q``.
         """
         assert self.pscch_curve is not None and self._sci_rng is not None
-        u = self._sci_rng.random(sinr_db.shape[0])
-        return u < self.pscch_curve.decoding_probability(sinr_db + self.config.sps.sci_sinr_offset_db)
+        u = np.asarray(self._sci_rng.random(sinr_db.shape[0]), dtype=np.float64)
+        return u, self.pscch_curve.decoding_probability(sinr_db + self.config.sps.sci_sinr_offset_db)
 
     def _co_channel_terms(self, tx: IntArray, rx: IntArray, active: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
         """For every link, the other transmitters on its resource (one row per (link, interferer)).

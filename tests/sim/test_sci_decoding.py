@@ -83,7 +83,7 @@ def test_decoding_probability_follows_the_source_algorithm_on_a_fine_grid() -> N
 
 
 def test_sci_draws_decode_at_the_curve_s_rate_and_are_reproducible() -> None:
-    """Simulator._sci_decoded: one uniform per link from the SCI stream; the share decoded matches
+    """Simulator._sci_draws: one uniform per link from the SCI stream; the share decoded matches
     1 - BLER within 5 standard errors at every SINR, and the same seed gives the same draws."""
     cfg = apply_overrides(preset("paper"), ["sps.sci_decoding=sinr", "sim.warmup_subframes=0"])
     sim = Simulator(cfg)
@@ -91,13 +91,13 @@ def test_sci_draws_decode_at_the_curve_s_rate_and_are_reproducible() -> None:
     n = 40_000
     for sinr_db in (-7.0, -5.0, -3.2, -2.0, -1.0, 0.0, 2.0):
         p = 1.0 - _ns3_bler(sinr_db)
-        share = float(sim._sci_decoded(np.full(n, sinr_db)).mean())
+        share = float(np.less(*sim._sci_draws(np.full(n, sinr_db))).mean())
         assert abs(share - p) <= 5.0 * math.sqrt(max(p * (1.0 - p), 1e-12) / n) + 1e-12, (sinr_db, share, p)
     a, b = Simulator(cfg), Simulator(cfg)
     a.reset(seed=9)
     b.reset(seed=9)
     x = np.linspace(-6.0, 1.0, 500)
-    np.testing.assert_array_equal(a._sci_decoded(x), b._sci_decoded(x))
+    np.testing.assert_array_equal(np.less(*a._sci_draws(x)), np.less(*b._sci_draws(x)))
     # the stream is the child of the root seed after the named streams (what an eighth name would get)
     expected = np.random.default_rng(np.random.SeedSequence(9).spawn(len(STREAM_NAMES) + 1)[-1]).random(5)
     np.testing.assert_array_equal(sci_stream(9).random(5), expected)
@@ -108,8 +108,8 @@ def test_the_offset_shifts_the_pscch_sinr() -> None:
     sim = Simulator(cfg)
     sim.reset(seed=1, warmup_subframes=0)
     # 3 dB on the PSSCH is -7 dB on the PSCCH: BLER 1, never decoded; 12 dB is 2 dB: always decoded
-    assert not sim._sci_decoded(np.full(1000, 3.0)).any()
-    assert sim._sci_decoded(np.full(1000, 12.0)).all()
+    assert not np.less(*sim._sci_draws(np.full(1000, 3.0))).any()
+    assert np.less(*sim._sci_draws(np.full(1000, 12.0))).all()
 
 
 # --------------------------------------------------------------------- a hand-built scene
@@ -367,3 +367,77 @@ def test_bad_values_are_refused_by_name() -> None:
         ConfigError, match=r"sps\.sci_sinr_offset_db: 30\.0 is out of range; allowed range: \[-20, 20\]"
     ):
         apply_overrides(preset("paper"), ["sps.sci_decoding=sinr", "sps.sci_sinr_offset_db=30"])
+
+
+def test_sci_gates_pssch_is_refused_without_the_sci_draws() -> None:
+    with pytest.raises(
+        ConfigError, match=r"sps\.sci_gates_pssch=true needs .*sps\.sci_decoding=sinr \(it is 'always'\)"
+    ):
+        apply_overrides(preset("paper"), ["sps.sci_gates_pssch=true"])
+    assert preset("highway-3gpp").sps.sci_gates_pssch and not preset("highway").sps.sci_gates_pssch
+
+
+def test_the_gate_multiplies_p_by_the_sci_probability_and_only_removes_receptions() -> None:
+    """Outcomes never feed back into the SPS state, so a run with the gate and one without follow the same
+    trajectory link for link (same PSSCH and SCI draws): with the gate, P is P_PSSCH x P_SCI(SINR + offset)
+    (the links table's own SINR), a packet received with the gate is received without it, and the share
+    lost to the gate among those received without it is 1 - P_SCI on average."""
+    curve = load_pscch_curve()
+    base = [
+        "vehicles.density_veh_per_m=0.1",
+        "road.length_m=3000",
+        "sps.sci_decoding=sinr",
+        "sps.sci_sinr_offset_db=-4",
+    ]
+    out = []
+    for gate in ("false", "true"):
+        sim = Simulator(apply_overrides(preset("highway"), [*base, f"sps.sci_gates_pssch={gate}"]))
+        sim.reset(seed=4, warmup_subframes=200)
+        links = sim.run(300).links
+        assert links is not None
+        out.append(links)
+    off, on = out
+    for col in ("tx", "rx", "sinr_db", "subframe"):
+        np.testing.assert_array_equal(off[col], on[col])
+    live = (off["cause"] != 1) & (off["cause"] != 2)  # half duplex / sensitivity: P = 0 either way
+    q = curve.decoding_probability(off["sinr_db"][live] - 4.0)
+    np.testing.assert_allclose(on["p_success"][live], off["p_success"][live] * q, rtol=1e-15, atol=0.0)
+    assert not np.any(on["outcome"] & ~off["outcome"])
+    got = off["outcome"] & live
+    lost = got & ~on["outcome"]
+    expected_lost = float(np.sum(1.0 - q[got[live]]))
+    assert lost.sum() > 100 and abs(lost.sum() - expected_lost) < 4.0 * math.sqrt(expected_lost), (
+        lost.sum(),
+        expected_lost,
+    )
+    # a link lost to its SCI only: collision when the SCI would have decoded at the SNR, else propagation
+    assert set(np.unique(on["cause"][lost])) <= {3, 4}
+
+
+@pytest.mark.parametrize("extra", [[], ["link.pair_state=sparse", "sps.reselection_timing=per_ue"]])
+def test_the_compiled_period_equals_the_numpy_period_with_the_gate(extra: list[str]) -> None:
+    cfg = apply_overrides(
+        preset("highway"),
+        [
+            "road.length_m=2500",
+            "metrics.record_links=false",
+            "sps.sci_decoding=sinr",
+            "sps.sci_sinr_offset_db=-3",
+            "sps.sci_gates_pssch=true",
+            *extra,
+        ],
+    )
+    runs = []
+    for compiled in (True, False):
+        sim = Simulator(cfg)
+        sim.compiled_period = compiled
+        sim.reset(6, warmup_subframes=250)
+        runs.append((sim, sim.run(450).metrics))
+    (a, ma), (b, mb) = runs
+    assert a.last_links is not None and b.last_links is not None
+    for x, y in zip(a.last_links, b.last_links, strict=True):
+        np.testing.assert_array_equal(x, y)
+    for key in ("bin_n", "bin_decoded", "bin_causes", "bin_expected", "node_decoded", "node_expected"):
+        np.testing.assert_array_equal(getattr(ma, key), getattr(mb, key), err_msg=key)
+    np.testing.assert_array_equal(a._period_sci_mw, b._period_sci_mw)
+    np.testing.assert_array_equal(a.resource, b.resource)
