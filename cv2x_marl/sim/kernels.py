@@ -591,6 +591,20 @@ def pairs_within_range(
 
 
 @njit(cache=True)
+def _segment(xs: FloatArray, x: float) -> int:
+    """The index ``j`` with ``xs[j] <= x < xs[j + 1]`` of ascending ``xs`` (``np.searchsorted(xs, x,
+    side="right") - 1``) by a scalar bisection, for ``xs[0] <= x < xs[-1]``."""
+    lo, hi = 0, xs.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if xs[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo - 1
+
+
+@njit(cache=True)
 def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool) -> float:
     """:func:`_per_success` with the table position found by a scalar bisection (the same index as
     ``np.searchsorted(side="right") - 1``, without its per-call array overhead): equal results."""
@@ -599,14 +613,7 @@ def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray
         return 0.0
     if sinr_db >= per_sinr_db[k - 1]:
         return 1.0 - per[k - 1]
-    lo, hi = 0, k
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if per_sinr_db[mid] <= sinr_db:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = lo - 1
+    j = _segment(per_sinr_db, sinr_db)
     if log_domain:
         a, b = math.log(per[j]), math.log(per[j + 1])
         slope = (b - a) / (per_sinr_db[j + 1] - per_sinr_db[j])
@@ -668,14 +675,7 @@ def _interp_clamped(x: float, xp: FloatArray, fp: FloatArray, left: float, right
         return right
     if x == xp[k - 1]:
         return fp[k - 1]
-    lo, hi = 0, k
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if xp[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = lo - 1
+    j = _segment(xp, x)
     if x == xp[j]:
         return fp[j]
     slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -415,7 +417,9 @@ def test_the_gate_multiplies_p_by_the_sci_probability_and_only_removes_reception
 
 
 @pytest.mark.parametrize("extra", [[], ["link.pair_state=sparse", "sps.reselection_timing=per_ue"]])
-def test_the_compiled_period_equals_the_numpy_period_with_the_gate(extra: list[str]) -> None:
+def test_the_compiled_period_equals_the_numpy_period_with_the_gate(
+    extra: list[str], compiled_and_numpy: Callable[..., Any]
+) -> None:
     cfg = apply_overrides(
         preset("highway"),
         [
@@ -427,17 +431,4 @@ def test_the_compiled_period_equals_the_numpy_period_with_the_gate(extra: list[s
             *extra,
         ],
     )
-    runs = []
-    for compiled in (True, False):
-        sim = Simulator(cfg)
-        sim.compiled_period = compiled
-        sim.reset(6, warmup_subframes=250)
-        runs.append((sim, sim.run(450).metrics))
-    (a, ma), (b, mb) = runs
-    assert a.last_links is not None and b.last_links is not None
-    for x, y in zip(a.last_links, b.last_links, strict=True):
-        np.testing.assert_array_equal(x, y)
-    for key in ("bin_n", "bin_decoded", "bin_causes", "bin_expected", "node_decoded", "node_expected"):
-        np.testing.assert_array_equal(getattr(ma, key), getattr(mb, key), err_msg=key)
-    np.testing.assert_array_equal(a._period_sci_mw, b._period_sci_mw)
-    np.testing.assert_array_equal(a.resource, b.resource)
+    compiled_and_numpy(cfg, 6, 250, 450)
