@@ -511,8 +511,8 @@ def pairs_within_range(
     A sweep over the vehicles sorted along x (wrapped when the x axis is periodic): for each vehicle,
     the others within ``range_m`` along x ahead and behind (each at most once, so a ring shorter than
     twice the range is fine), kept when the minimum-image distance satisfies ``dx^2 + dy^2 <= r^2``.
-    The pairs of the KD-tree query it replaces in the sparse state (``query_pairs``), in the order
-    the simulator sorts those; cost ``O(N log N + N k)`` with k the vehicles within range along x.
+    The pairs of scipy's KD-tree query (``query_pairs``, tested), in ``(i, j)`` order; cost
+    ``O(N log N + N k)`` with k the vehicles within range along x.
 
     Args:
         pos_m: [N, 2] positions, m.
@@ -705,6 +705,7 @@ def period_chunk(
     bin_m: float,
     n_bins: int,
     n_causes: int,
+    subset: bool,
     links: NDArray[np.int64],
     total: FloatArray,
     sci_rng: np.random.Generator,
@@ -733,7 +734,7 @@ def period_chunk(
 
     Pass 1: the power each receiver gets on each resource from the active transmitters,
     ``total[rx * n_res + resource[tx]] += rx_mw`` in link order (``np.bincount``'s additions, so equal
-    to the last bit), added to the period's S-RSSI ``period_rssi_mw``. Pass 2, for each link whose
+    to the last bit; flat in-band: the same per receiver and subframe). Pass 2, for each link whose
     transmitter is active, in order: interference ``I = max(total - S, 0)`` on the link's resource,
     ``SINR = S / (I + N)``, one uniform ``u`` from ``link_rng`` (the numpy path's
     ``rng.link.random(L)``, drawn in the same order: the same numbers), success ``P`` (``model``:
@@ -741,7 +742,8 @@ def period_chunk(
     cause (half duplex, below sensitivity, propagation ``u >= P0``, collision), the strongest decodable
     SCI per receiver and resource (``period_sci_mw``, linear: the sensing takes its RSRP in dBm when it
     reads it; a releasing UE's SCI reserves nothing, TS 36.213 14.1.1.6) and the PRR accumulators of
-    :class:`cv2x_marl.sim.metrics.PrrAccumulator`. The dB values (``10 log10``: libm's, equal to
+    :class:`cv2x_marl.sim.metrics.PrrAccumulator`. Last, ``total`` (and the 3gpp leakage) is added to the
+    period's S-RSSI ``period_rssi_mw`` and the scratches are zeroed. The dB values (``10 log10``: libm's, equal to
     numpy's on the CPUs tested) are taken only where a comparison needs them (:func:`_db_below`,
     :func:`_success_of_ratio`): equal to the numpy path (tested), at a fraction of the cost when most
     links are far below the PER table.
@@ -760,9 +762,9 @@ def period_chunk(
         period_rssi_mw: [N * n_res] the period's S-RSSI sums, updated in place.
         period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW), in place.
         bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
-        links: the indices of the links whose transmitter is active, increasing (from
-            :func:`active_links`: a chunk of a few transmitters visits only their links); empty: every
-            link, each checked against ``active``.
+        subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
+            active, increasing (from :func:`active_links`: a chunk of a few transmitters visits only their
+            links, possibly none); without, every link is visited and checked against ``active``.
         total: [N * n_res] zeros, a scratch for the power sums: left zero again on return.
         sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
             draw per active link, as ``Simulator._sci_draws``), the PSCCH BLER curve (points in linear
@@ -786,7 +788,6 @@ def period_chunk(
         node_decoded, node_expected`` [N].
     """
     n = active.shape[0]
-    subset = links.shape[0] > 0
     n_visit = links.shape[0] if subset else rx.shape[0]
     n_links = 0
     for q in range(n_visit):

@@ -67,6 +67,7 @@ _PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the perio
 # _chunk_compiled (no links table, no Rayleigh; kernels.period_chunk): no array over the links but its outputs
 # (last_links); the scratch for the power per receiver and resource [N * R] (float64), kept between chunks
 _COMPILED_PERIOD_PER_CELL = 8
+_CHUNK_SUBSET_PER_LINK = 12  # kernels.links_by_transmitter's index (8 B) and a chunk's links (at most half)
 _SCI_DECODING_PER_LINK = 33  # sps.sci_decoding=sinr: uniforms, SINR + offset, linear SINR, P (8 B), decoded (1 B)
 _LAST_LINKS_PER_LINK = 25  # Simulator.last_links: tx, rx, p (8 B) and cause (1 B) of the last chunk
 _CO_CHANNEL_PER_TERM = 66  # _co_channel_terms + NSV/interferer distance of the links table (measured 60-66)
@@ -202,8 +203,10 @@ def _estimate(
         snapshot = _SNAPSHOT_PER_CELL * cells
         snapshot_build = _SNAPSHOT_BUILD_PER_PAIR * p
     periods = max(1, sps.sensing_window_ms // rri)
-    # in-band emission: flat, the per-(receiver, subframe) sums [N, RRI]; 3gpp, the leakage per (receiver, resource)
-    inband = 8 * n_arr * n_res if cfg.link.inband_emission_model == "3gpp" else 0
+    compiled = not record and not rayleigh  # as Simulator._chunk: the compiled chunk
+    # in-band emission: flat, the per-(receiver, subframe) sums [N, RRI] (the compiled chunk's scratch, or
+    # the numpy chunk's); 3gpp, the numpy chunk's leakage per (receiver, resource) (the kernel sums it per link)
+    inband = 8 * n_arr * n_res if cfg.link.inband_emission_model == "3gpp" and not compiled else 0
     inband += 8 * n_arr * rri if cfg.link.inband_emission_db is not None else 0
     sensing = (4 * periods + 16) * n_arr * n_res + inband
     if sps.reselection_timing == "per_ue":  # the previous period's SCI RSRP map, float64 [N, R]
@@ -213,10 +216,11 @@ def _estimate(
     candidates = sps.selection_window_subframes * sps.n_subchannels
     select = reselecting * candidates * (_SELECT_PER_CANDIDATE + 9 * periods) + 4 * n * n_res
     geometry = _GEOMETRY_PER_PAIR * p
-    compiled = not record and not rayleigh  # as Simulator._chunk
     period = _COMPILED_PERIOD_PER_CELL * n_arr * n_res if compiled else _PERIOD_PER_LINK * links
-    if sps.sci_decoding == "sinr":  # the SCI draws, the PSCCH SINR and decoding probability (8 B), decoded (1 B)
+    if sps.sci_decoding == "sinr" and not compiled:  # numpy: SCI draws, PSCCH SINR, probability (8 B), decoded (1 B)
         period += _SCI_DECODING_PER_LINK * links
+    if sps.reselection_timing == "per_ue" and compiled:  # chunks of a few senders: links by sender, the chunk's
+        period += _CHUNK_SUBSET_PER_LINK * links
     # per_ue cuts periods: the parts of the last period are kept, then concatenated (two copies at once)
     last = _LAST_LINKS_PER_LINK * links * (2 if sps.reselection_timing == "per_ue" else 1)
     if rayleigh:

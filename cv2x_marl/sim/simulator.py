@@ -286,10 +286,11 @@ class Simulator:
         self._pscch_lin = np.power(10.0, self.pscch_curve.sinr_db / 10.0) if self.pscch_curve is not None else None
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
-        #: the compiled period (_chunk_compiled) where it applies: with the sparse state
+        #: the compiled chunk (_chunk_compiled) where it applies: no links table, link.model not rayleigh;
+        #: False forces the numpy chunk (the reference the tests compare it with)
         self.compiled_period = True
         self._all_pairs: tuple[IntArray, IntArray] | None = None
-        if config.link.max_range_m is None:  # the KD-tree gives the pairs in range otherwise
+        if config.link.max_range_m is None:  # the compiled sweep gives the pairs in range otherwise
             iu, ju = np.triu_indices(self.n, 1)
             self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
         self._source: MobilitySource | None = None
@@ -796,7 +797,7 @@ class Simulator:
             acc.bin_m if acc is not None else 1.0,
             nb,
             len(CAUSE_CODE),
-            self._chunk_links(geo, active),
+            *self._chunk_links(geo, active),
             self._chunk_total,
             self._sci_rng if self._sci_rng is not None else self.rng.link,
             sci_lin,
@@ -829,17 +830,17 @@ class Simulator:
             leak = leak + t2[:, i : i + 1] * m[:, i]
         return leak.reshape(-1)
 
-    def _chunk_links(self, geo: _Geometry, active: NDArray[np.bool_]) -> IntArray:
+    def _chunk_links(self, geo: _Geometry, active: NDArray[np.bool_]) -> tuple[bool, IntArray]:
         """The links of a chunk with fewer transmitters than half the vehicles (the parts of a period
-        that ``sps.reselection_timing=per_ue`` cuts, a run that ends mid-period), increasing; empty (the
-        kernel visits every link and scans the N x R sums) otherwise. The grouping by transmitter is
-        built once per period, on the first such chunk."""
+        that ``sps.reselection_timing=per_ue`` cuts, a run that ends mid-period), increasing, possibly
+        none: ``(True, links)``; otherwise ``(False, empty)``, the kernel visiting every link and scanning
+        the N x R sums. The grouping by transmitter is built once per period, on the first such chunk."""
         senders = np.flatnonzero(active)
         if 2 * senders.shape[0] >= self.n:
-            return np.empty(0, dtype=np.int64)
+            return False, np.empty(0, dtype=np.int64)
         if geo.tx_start is None or geo.tx_index is None:
             geo.tx_start, geo.tx_index = kernels.links_by_transmitter(geo.tx, self.n)
-        return kernels.active_links(geo.tx_start, geo.tx_index, senders)
+        return True, kernels.active_links(geo.tx_start, geo.tx_index, senders)
 
     def _sci_draws(self, sinr_db: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``sps.sci_decoding=sinr``: whether each link's receiver decodes the transmitter's SCI.

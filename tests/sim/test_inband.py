@@ -329,7 +329,7 @@ def test_compiled_period_with_inband_emission_equals_the_numpy_period(
     order as Simulator._chunk, so the same outcomes, PRR sums, S-RSSI (leakage included) and reselections;
     per_ue cuts the period into chunks of a few transmitters (the subset path)."""
     base = ["vehicles.density_veh_per_m=0.1", "road.length_m=2500", "metrics.record_links=false"]
-    a, ma, _, _ = compiled_and_numpy(apply_overrides(preset("highway"), [*base, *extra]), 1, 250, 450)
+    a, ma, _, _ = compiled_and_numpy(apply_overrides(preset("highway"), [*base, *extra]), 1, 250, 440)
     assert a.n_reselections > 0
     # and the leakage is really there: the same run without it decodes more
     plain = Simulator(apply_overrides(preset("highway"), base))

@@ -72,11 +72,11 @@ def test_links_table_grows_with_the_run_length() -> None:
 
 def _measured_peak(cfg_name: str, overrides: list[str], n_subframes: int) -> tuple[int, int]:
     """(tracemalloc peak of Simulator + reset + run, estimate), bytes."""
-    warm = Simulator(apply_overrides(preset("paper"), ["sim.warmup_subframes=0"]))  # compiled kernels loaded
-    warm.reset(0)
-    warm.run(100)
-    del warm
     cfg = apply_overrides(preset(cfg_name), overrides)
+    warm = Simulator(cfg)  # the kernels this scenario uses (warm-up and run) compiled or loaded first
+    warm.reset(0)
+    warm.run(150)
+    del warm
     tracemalloc.start()
     try:
         base = tracemalloc.get_traced_memory()[0]

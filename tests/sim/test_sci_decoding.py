@@ -431,4 +431,4 @@ def test_the_compiled_period_equals_the_numpy_period_with_the_gate(
             *extra,
         ],
     )
-    compiled_and_numpy(cfg, 6, 250, 450)
+    compiled_and_numpy(cfg, 6, 250, 440)
