@@ -219,6 +219,14 @@ def sci_stream(seed: int) -> np.random.Generator:
     return np.random.default_rng(child)
 
 
+def _joined(
+    parts: list[tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]]],
+) -> tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]]:
+    """``Simulator.last_links`` of the chunks ``parts`` of one period, in order (``tx, rx, p, cause``)."""
+    tx, rx, p, cause = (np.concatenate(cols) for cols in zip(*parts, strict=True))
+    return tx, rx, p, cause
+
+
 @dataclass
 class _Geometry:
     """Per-period pair quantities. Ordered pairs are (rx, tx); the first half is (i, j), i < j."""
@@ -632,15 +640,17 @@ class Simulator:
                     v.clear()
             self.subframe += hi - lo
             if hi == self.rri:
+                if len(period_links) > 1:  # per_ue cut the period: last_links is the whole period's
+                    self.last_links = _joined(period_links)
+                period_links = []
                 self._end_period()
                 if record and self._vacated.size:  # population=open: a slot's next vehicle is a new node
                     acc.retire(self._vacated)
                     self._vacated = np.empty(0, dtype=np.int64)
             if progress is not None:
                 progress(hi - lo)
-        if len(period_links) > 1:  # per_ue cuts periods: last_links holds the last period's part run here
-            tx, rx, p, cause = (np.concatenate(parts) for parts in zip(*period_links, strict=True))
-            self.last_links = (tx, rx, p, cause)
+        if len(period_links) > 1:  # a run ending mid-period: last_links holds the parts of it run here
+            self.last_links = _joined(period_links)
         keep = keep_links and links_sink is None
         links = {c: np.concatenate(v) if v else np.empty(0) for c, v in cols.items()} if keep else None
         return RunResult(acc, links, n_subframes, time.perf_counter() - t0)

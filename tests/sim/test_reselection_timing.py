@@ -318,3 +318,28 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_per_ue() -> Non
     np.testing.assert_array_equal(r1, r2)
     np.testing.assert_array_equal(s1._period_sci_mw, s2._period_sci_mw)
     np.testing.assert_array_equal(s1._rssi_ring, s2._rssi_ring)
+
+
+def test_a_run_crossing_into_a_period_keeps_the_whole_last_period_in_last_links() -> None:
+    """per_ue cuts a period into chunks; when one run crosses into a period whose part has no transmitter
+    yet, last_links is the whole previous period (its chunks joined), as after a run ending on it."""
+    cfg = apply_overrides(preset("highway"), [*BASE, "sps.reselection_timing=per_ue", "road.length_m=300"])
+    for seed in range(20):
+        a = Simulator(cfg)
+        a.reset(seed, warmup_subframes=1000)
+        expiring = bool(np.any(a.counter <= 1))  # a UE's counter runs out in this period: the period is cut
+        cuts: list[tuple[int, int]] = []
+        orig = a._chunk
+        a._chunk = lambda lo, hi, *rest, _o=orig, _c=cuts: (_c.append((lo, hi)), _o(lo, hi, *rest))[1]  # type: ignore[method-assign]
+        a.run(a.rri)
+        if expiring and len(cuts) > 1 and not np.any(a.slot == 0):  # nobody transmits in the next slot 0
+            break
+    else:
+        pytest.skip("no seed with a cut period followed by an empty slot 0")
+    assert a.last_links is not None
+    b = Simulator(cfg)
+    b.reset(seed, warmup_subframes=1000)
+    b.run(b.rri + 1)  # one run: the whole period, then slot 0 of the next (no transmitter)
+    assert b.last_links is not None
+    for x, y in zip(a.last_links, b.last_links, strict=True):
+        np.testing.assert_array_equal(x, y)
