@@ -219,6 +219,10 @@ def sci_stream(seed: int) -> np.random.Generator:
     return np.random.default_rng(child)
 
 
+#: the period's ordered pairs from which a chunk runs compiled (Simulator.compiled_min_links)
+COMPILED_CHUNK_MIN_LINKS = 1000
+
+
 def _joined(
     parts: list[tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]]],
 ) -> tuple[IntArray, IntArray, FloatArray, NDArray[np.int8]]:
@@ -294,9 +298,12 @@ class Simulator:
         self._pscch_lin = np.power(10.0, self.pscch_curve.sinr_db / 10.0) if self.pscch_curve is not None else None
         check_memory(config)  # refuse (ConfigError) before the N x N arrays: pair index here, shadowing in reset
         self.sparse_state = uses_sparse_state(config)
-        #: the compiled chunk (_chunk_compiled) where it applies: no links table, link.model not rayleigh;
-        #: False forces the numpy chunk (the reference the tests compare it with)
+        #: the compiled chunk (_chunk_compiled) where it applies: no links table, link.model not rayleigh,
+        #: at least compiled_min_links links in the period; False forces the numpy chunk (the reference the
+        #: tests compare it with). Below the size the numpy chunk is as fast or faster (its calls cost less
+        #: than the kernel's dispatch): measured 148 vs 168 us per period at 420 links, 283 vs 267 us at 1,560
         self.compiled_period = True
+        self.compiled_min_links = COMPILED_CHUNK_MIN_LINKS
         self._all_pairs: tuple[IntArray, IntArray] | None = None
         if config.link.max_range_m is None:  # the compiled sweep gives the pairs in range otherwise
             iu, ju = np.triu_indices(self.n, 1)
@@ -669,7 +676,8 @@ class Simulator:
         active = (slot >= lo) & (slot < hi)
         if not np.any(active):
             return
-        if self.compiled_period and cols is None and cfg.link.model != "rayleigh":
+        compiled = self.compiled_period and geo.rx.shape[0] >= self.compiled_min_links
+        if compiled and cols is None and cfg.link.model != "rayleigh":
             self._chunk_compiled(geo, active, acc)
             return
         sel = active[geo.tx]

@@ -39,6 +39,7 @@ def compiled_and_numpy() -> Callable[..., tuple[Any, Any, Any, Any]]:
         for compiled in (True, False):
             sim = Simulator(cfg)
             sim.compiled_period = compiled
+            sim.compiled_min_links = 0  # the compiled chunk at any size
             sim.reset(seed, warmup_subframes=warmup_subframes)  # part periods: chunks of part of a period
             out.append((sim, sim.run(n_subframes).metrics))
         (a, ma), (b, mb) = out

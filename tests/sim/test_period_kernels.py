@@ -217,6 +217,7 @@ def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks() -> None:
     for compiled in (True, False):
         sim = Simulator(cfg)
         sim.compiled_period = compiled
+        sim.compiled_min_links = 0  # the compiled chunk at any size
         sim.reset(5, warmup_subframes=100)
         geo = sim._period_geometry()
         subset, links = sim._chunk_links(geo, sim.slot < 7)
@@ -277,3 +278,27 @@ def test_compiled_period_equals_the_numpy_period_with_an_open_population(
     ]
     a, _, _, _ = compiled_and_numpy(apply_overrides(preset("paper"), [*base, *extra]), 3, 137, 3030)
     assert a.n_departures > 0 and a.n_entries > 0
+
+
+def test_small_periods_run_the_numpy_chunk_and_large_ones_the_compiled_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Below Simulator.compiled_min_links links a period runs the numpy chunk (the same results, less
+    dispatch cost at the paper's 420 links); at or above it the compiled one."""
+    calls: list[int] = []
+    orig = Simulator._chunk_compiled
+
+    def spy(self: Simulator, geo: object, active: object, acc: object) -> None:
+        calls.append(1)
+        orig(self, geo, active, acc)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Simulator, "_chunk_compiled", spy)
+    small = Simulator(apply_overrides(preset("paper"), ["metrics.record_links=false"]))  # 21 vehicles: 420 links
+    small.reset(1, warmup_subframes=0)
+    small.run(200)
+    assert not calls
+    small.compiled_min_links = 420
+    small.run(200)
+    assert len(calls) == 2  # one chunk per period
+    big = Simulator(apply_overrides(preset("paper"), ["metrics.record_links=false", "vehicles.n_vehicles=40"]))
+    big.reset(1, warmup_subframes=0)  # 1,560 links
+    big.run(100)
+    assert len(calls) == 3

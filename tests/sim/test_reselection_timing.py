@@ -310,6 +310,7 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_per_ue() -> Non
         sim = Simulator(apply_overrides(preset("highway"), over))
         assert sim.compiled_period
         sim.compiled_period = compiled
+        sim.compiled_min_links = 0  # the compiled chunk at any size
         sim.reset(seed=5)
         result = sim.run(650)
         runs.append((result.metrics.summary(), sim.n_reselections, sim.resource.copy(), sim))

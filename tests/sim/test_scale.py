@@ -217,6 +217,7 @@ def test_compiled_period_equals_the_numpy_period(monkeypatch: pytest.MonkeyPatch
     for compiled in (True, False):
         sim = Simulator(cfg)
         sim.compiled_period = compiled
+        sim.compiled_min_links = 0  # the compiled chunk at any size
         sim.reset(7, warmup_subframes=250)  # half periods too: chunks of part of a period
         res = sim.run(450)
         runs.append((sim, res.metrics))

@@ -240,6 +240,7 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr() -> None:
         sim = Simulator(apply_overrides(preset("highway"), base))
         assert sim.compiled_period
         sim.compiled_period = compiled
+        sim.compiled_min_links = 0  # the compiled chunk at any size
         sim.reset(seed=4)
         result = sim.run(650)  # ends mid-period: the SCI map of the period so far is compared too
         runs.append((result.metrics.summary()["prr_mean"], sim.n_reselections, sim.resource.copy(), sim))
