@@ -279,6 +279,37 @@ class SparseShadowing:
         """
         keys = a * self._n + b
         m = keys.shape[0]
+        if self.correlation == "travelled":
+            odo = odometer_m[a] + odometer_m[b]
+        else:
+            if distance_m is None:
+                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
+            odo = np.asarray(distance_m, dtype=np.float64)
+        ascending = m < 2 or bool(np.all(keys[1:] > keys[:-1]))
+        if ascending:  # the simulator's pairs: a compiled merge with the state, the same draws and values
+            z = kernels.shadowing_update_sparse(
+                self._keys,
+                self._z,
+                self._last,
+                np.ascontiguousarray(keys, dtype=np.int64),
+                np.ascontiguousarray(odo, dtype=np.float64),
+                float(self._dc),
+                self.correlation == "pair_distance",
+                self._rng,
+            )
+        else:
+            z = self._step_numpy(keys, odo)
+        if m > 1 and not np.all(keys[1:] > keys[:-1]):
+            order = np.argsort(keys, kind="stable")
+            self._keys, self._z, self._last = keys[order], z[order], odo[order]
+        else:
+            self._keys, self._z, self._last = keys, z.copy(), odo.copy()
+        return z
+
+    def _step_numpy(self, keys: NDArray[np.int64], odo: FloatArray) -> FloatArray:
+        """The AR(1) step in numpy (any key order): :func:`cv2x_marl.sim.kernels.shadowing_update_sparse`'s
+        reference, which the tests compare it with."""
+        m = keys.shape[0]
         if self._keys.shape[0]:
             pos = np.minimum(np.searchsorted(self._keys, keys), self._keys.shape[0] - 1)
             found = self._keys[pos] == keys
@@ -293,22 +324,12 @@ class SparseShadowing:
         last[found] = self._last[pos[found]]
         if self.correlation == "travelled":
             last[new] = 0.0
-            odo = odometer_m[a] + odometer_m[b]
             rho = np.exp(-(odo - last) / self._dc)
         else:
-            if distance_m is None:
-                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
             last[new] = np.nan
-            odo = np.asarray(distance_m, dtype=np.float64)
             change_m = np.abs(odo - last)
             rho = np.exp(-np.where(np.isnan(change_m), 0.0, change_m) / self._dc)
-        z = rho * z_prev + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(m)
-        if m > 1 and not np.all(keys[1:] > keys[:-1]):
-            order = np.argsort(keys, kind="stable")
-            self._keys, self._z, self._last = keys[order], z[order], odo[order]
-        else:
-            self._keys, self._z, self._last = keys, z.copy(), odo.copy()
-        return z
+        return np.asarray(rho * z_prev + np.sqrt(1.0 - rho * rho) * self._rng.standard_normal(m))
 
     def renew(self, vehicles: NDArray[np.int64], odometer_m: FloatArray) -> None:
         """New vehicles in the slots ``vehicles`` (``vehicles.population=open``): their pairs are

@@ -1133,3 +1133,61 @@ def received_powers(
         out[k] = w * gains[k] if faded else w
         out[p + k] = w * gains[p + k] if faded else w
     return mean, out
+
+
+@njit(cache=True)
+def shadowing_update_sparse(
+    keys_prev: NDArray[np.int64],
+    z_state: FloatArray,
+    last_state: FloatArray,
+    keys: NDArray[np.int64],
+    reference: FloatArray,
+    decorrelation_m: float,
+    pair_distance: bool,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """The AR(1) step of :class:`cv2x_marl.sim.channel.SparseShadowing` for the pairs ``keys``.
+
+    A merge of the two ascending key lists finds each pair's last read (the numpy path's
+    ``searchsorted``); a pair not in the state gets a fresh ``Z`` (one ``rng`` normal each, in pair
+    order, before the update's innovations: the numpy path's ``standard_normal(n_new)`` then
+    ``standard_normal(P)``, the same numbers) and ``last`` 0 (``travelled``) or none (``pair_distance``:
+    ``rho = 1``); then ``z = rho z_last + sqrt(1 - rho^2) w`` as :func:`shadowing_update_dense`.
+
+    Args:
+        keys_prev: [Q] the state's pair keys, strictly ascending.
+        z_state, last_state: [Q] their Z and last reference.
+        keys: [P] this read's pair keys, strictly ascending.
+        reference: [P] odometer sums (``travelled``) or pair distances (``pair_distance``), m.
+        decorrelation_m: d_c, m.
+        pair_distance: which distance D is.
+        rng: the channel stream.
+
+    Returns:
+        [P] the pairs' unit-variance shadowing.
+    """
+    m = keys.shape[0]
+    q = keys_prev.shape[0]
+    pos = np.full(m, -1, dtype=np.int64)
+    j = 0
+    for k in range(m):
+        while j < q and keys_prev[j] < keys[k]:
+            j += 1
+        if j < q and keys_prev[j] == keys[k]:
+            pos[k] = j
+    z_prev = np.empty(m)
+    for k in range(m):  # fresh draws first, in pair order
+        if pos[k] < 0:
+            z_prev[k] = rng.standard_normal()
+        else:
+            z_prev[k] = z_state[pos[k]]
+    z = np.empty(m)
+    for k in range(m):
+        if pair_distance:
+            change = abs(reference[k] - last_state[pos[k]]) if pos[k] >= 0 else math.nan
+            rho = math.exp(-(0.0 if math.isnan(change) else change) / decorrelation_m)
+        else:
+            last = last_state[pos[k]] if pos[k] >= 0 else 0.0
+            rho = math.exp(-(reference[k] - last) / decorrelation_m)
+        z[k] = rho * z_prev[k] + math.sqrt(1.0 - rho * rho) * rng.standard_normal()
+    return z

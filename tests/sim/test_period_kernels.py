@@ -302,3 +302,31 @@ def test_small_periods_run_the_numpy_chunk_and_large_ones_the_compiled_one(monke
     big.reset(1, warmup_subframes=0)  # 1,560 links
     big.run(100)
     assert len(calls) == 3
+
+
+@pytest.mark.parametrize("correlation", ["travelled", "pair_distance"])
+def test_sparse_shadowing_step_equals_its_numpy_reference(correlation: str) -> None:
+    """channel.SparseShadowing: the compiled merge step (kernels.shadowing_update_sparse) against the numpy
+    step (_step_numpy) on the same state and stream, over reads where pairs leave, stay and come back."""
+    from cv2x_marl.sim.channel import SparseShadowing
+
+    n = 300
+    rng = np.random.default_rng(8)
+    sims = [SparseShadowing(n, 25.0, np.random.default_rng(3), correlation) for _ in range(2)]
+    odometer = np.zeros(n)
+    prev_keys = np.empty(0, dtype=np.int64)
+    for step in range(6):
+        keep = rng.random(n * (n - 1) // 2) < 0.05  # a different ~5 % of the pairs each read, ascending
+        a, b = (x[keep].astype(np.int64) for x in np.triu_indices(n, 1))
+        odometer = odometer + rng.uniform(0.0, 3.0, n)
+        dist = rng.uniform(5.0, 900.0, a.shape[0])
+        fast = sims[0].sample(a, b, odometer, dist)
+        keys = a * n + b
+        ref = sims[1]._step_numpy(keys, odometer[a] + odometer[b] if correlation == "travelled" else dist)
+        sims[1]._keys, sims[1]._z = keys, ref.copy()
+        sims[1]._last = odometer[a] + odometer[b] if correlation == "travelled" else dist.copy()
+        np.testing.assert_allclose(fast, ref, rtol=1e-15, atol=1e-15)  # equal here; numpy's exp may be SIMD
+        np.testing.assert_array_equal(sims[0]._keys, keys)
+        assert step == 0 or np.any(np.isin(keys, prev_keys))  # some pairs were read before
+        prev_keys = keys
+    assert np.std(fast) == pytest.approx(1.0, abs=0.05)
