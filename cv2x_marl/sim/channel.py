@@ -123,6 +123,22 @@ def path_loss_db(cfg: ChannelConfig, carrier_hz: float, disp_m: FloatArray, los:
     return winner_b1_db(disp_m[..., 0], disp_m[..., 1], los, carrier_hz, cfg.effective_height_m, cfg.min_distance_m)
 
 
+def _correlation_reference(
+    correlation: str,
+    a: NDArray[np.int64],
+    b: NDArray[np.int64],
+    odometer_m: FloatArray,
+    distance_m: FloatArray | None,
+) -> FloatArray:
+    """What the shadowing's decorrelation distance is measured on, per pair [P]: the odometer sum of
+    both ends (``travelled``) or the pair's distance (``pair_distance``), m."""
+    if correlation == "travelled":
+        return np.asarray(odometer_m[a] + odometer_m[b], dtype=np.float64)
+    if distance_m is None:
+        raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
+    return np.asarray(distance_m, dtype=np.float64)
+
+
 class Shadowing:
     """Symmetric, distance-correlated log-normal shadowing for every vehicle pair.
 
@@ -168,12 +184,7 @@ class Shadowing:
             distance_m: [P] the pairs' current distances (needed by ``pair_distance``).
         """
         n = self._z.shape[0]
-        if self.correlation == "travelled":
-            reference = odometer_m[a] + odometer_m[b]
-        else:
-            if distance_m is None:
-                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
-            reference = np.asarray(distance_m, dtype=np.float64)
+        reference = _correlation_reference(self.correlation, a, b, odometer_m, distance_m)
         normals = np.asarray(self._rng.standard_normal(a.shape[0]), dtype=np.float64)
         return kernels.shadowing_update_dense(
             self._z.reshape(-1),
@@ -279,12 +290,7 @@ class SparseShadowing:
         """
         keys = a * self._n + b
         m = keys.shape[0]
-        if self.correlation == "travelled":
-            odo = odometer_m[a] + odometer_m[b]
-        else:
-            if distance_m is None:
-                raise ValueError("shadowing correlation pair_distance needs the pairs' distances")
-            odo = np.asarray(distance_m, dtype=np.float64)
+        odo = _correlation_reference(self.correlation, a, b, odometer_m, distance_m)
         ascending = m < 2 or bool(np.all(keys[1:] > keys[:-1]))
         if ascending:  # the simulator's pairs: a compiled merge with the state, the same draws and values
             z = kernels.shadowing_update_sparse(

@@ -106,13 +106,14 @@ def winner_b1_array_db(dx_m: FloatArray, dy_m: FloatArray, los: NDArray[np.bool_
 @njit(cache=True)
 def _per_success(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool = False) -> float:
     """``1 - PER`` interpolated (PER 1 below the table, the last PER above): np.interp's formula,
-    on PER (``log_domain`` False) or on ``ln PER`` (True; :meth:`cv2x_marl.sim.link.PerCurve.success`)."""
+    on PER (``log_domain`` False) or on ``ln PER`` (True; :meth:`cv2x_marl.sim.link.PerCurve.success`),
+    the table position by a scalar bisection (:func:`_segment`, ``np.searchsorted(side="right") - 1``)."""
     k = per_sinr_db.shape[0]
     if not sinr_db >= per_sinr_db[0]:  # also -inf and NaN
         return 0.0
     if sinr_db >= per_sinr_db[k - 1]:
         return 1.0 - per[k - 1]
-    j = np.searchsorted(per_sinr_db, sinr_db, side="right") - 1
+    j = _segment(per_sinr_db, sinr_db)
     if log_domain:
         lo, hi = math.log(per[j]), math.log(per[j + 1])
         slope = (hi - lo) / (per_sinr_db[j + 1] - per_sinr_db[j])
@@ -604,24 +605,6 @@ def _segment(xs: FloatArray, x: float) -> int:
     return lo - 1
 
 
-@njit(cache=True)
-def _per_success_bisect(sinr_db: float, per_sinr_db: FloatArray, per: FloatArray, log_domain: bool) -> float:
-    """:func:`_per_success` with the table position found by a scalar bisection (the same index as
-    ``np.searchsorted(side="right") - 1``, without its per-call array overhead): equal results."""
-    k = per_sinr_db.shape[0]
-    if not sinr_db >= per_sinr_db[0]:  # also -inf and NaN
-        return 0.0
-    if sinr_db >= per_sinr_db[k - 1]:
-        return 1.0 - per[k - 1]
-    j = _segment(per_sinr_db, sinr_db)
-    if log_domain:
-        a, b = math.log(per[j]), math.log(per[j + 1])
-        slope = (b - a) / (per_sinr_db[j + 1] - per_sinr_db[j])
-        return 1.0 - math.exp(slope * (sinr_db - per_sinr_db[j]) + a)
-    slope = (per[j + 1] - per[j]) / (per_sinr_db[j + 1] - per_sinr_db[j])
-    return 1.0 - (slope * (sinr_db - per_sinr_db[j]) + per[j])
-
-
 #: relative margin of the linear-domain tests that decide a dB comparison without a logarithm: far
 #: larger than the error of ``10 log10`` (a few ulps), so inside it the logarithm decides, as numpy's
 _LIN_MARGIN = 1e-9
@@ -650,7 +633,7 @@ def _success_of_ratio(
     threshold_lin: float,
 ) -> float:
     """Success probability of a link at linear SINR (or SNR) ``ratio``: the threshold model or the PER
-    table (:func:`_per_success_bisect` on ``10 log10(ratio)``, numpy's dB value), the logarithm taken
+    table (:func:`_per_success` on ``10 log10(ratio)``, numpy's dB value), the logarithm taken
     only when the ratio is within the table (``per_lin_lo``, ``per_lin_hi``: its ends in linear
     units) or near the threshold: outside, the constant the dB formula gives."""
     if model == MODEL_THRESHOLD:
@@ -659,7 +642,7 @@ def _success_of_ratio(
         return 0.0
     if ratio > per_lin_hi * (1.0 + _LIN_MARGIN):
         return 1.0 - per[per.shape[0] - 1]
-    return _per_success_bisect(10.0 * math.log10(ratio), per_sinr_db, per, model == MODEL_PER_TABLE_LOG)
+    return _per_success(10.0 * math.log10(ratio), per_sinr_db, per, model == MODEL_PER_TABLE_LOG)
 
 
 @njit(cache=True)

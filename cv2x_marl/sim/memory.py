@@ -62,7 +62,7 @@ _SHADOWING_PER_CELL = 16  # Shadowing._z and ._last_odo: float64 [N, N] each
 _SHADOWING_INIT_PER_CELL = 25  # Shadowing.__init__: draw w, triu(w) (+ in-place .T sum), triu mask (bool)
 _SNAPSHOT_PER_CELL = 9  # Snapshot.los (bool) and .shadowing_db (float64) [N, N], returned by reset
 _SNAPSHOT_BUILD_PER_PAIR = 170  # snapshot(): path loss and shadowing of the P pairs (measured 150-170)
-_GEOMETRY_PER_PAIR = 98  # _Geometry: rx, tx, distance, rel. speed, mean power, power [2P] (8 B), los [2P] (1 B)
+_GEOMETRY_PER_PAIR = 81  # _Geometry: rx, tx, distance, power [2P] (8 B); LOS (1 B), mean power, rel. speed [P]
 _PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the period's L links (measured 124)
 # _chunk_compiled (no links table, no Rayleigh; kernels.period_chunk): no array over the links but its outputs
 # (last_links); the scratch for the power per receiver and resource [N * R] (float64), kept between chunks
@@ -83,7 +83,7 @@ SPARSE_STATE_MIN_VEHICLES = 2500
 
 # Sparse pair state, bytes per unordered pair in range P:
 _SPARSE_SHADOWING_PER_PAIR = 24  # SparseShadowing: keys (int64), Z and last read (float64)
-_SPARSE_SHADOWING_UPDATE_PER_PAIR = 90  # ... while updated: keys, positions, found, Z, last, rho, draws
+_SPARSE_SHADOWING_UPDATE_PER_PAIR = 41  # ... while updated: keys, reference, positions, last Z, new Z, order check
 _LAZY_SNAPSHOT_PER_PAIR = 25  # _LazySnapshot until read: i, j (int64), LOS (bool), mean power (float64)
 
 #: below this estimate, check_memory does not read /proc/meminfo (the env builds small simulators often)

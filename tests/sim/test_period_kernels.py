@@ -43,7 +43,7 @@ def test_db_below_agrees_with_the_logarithm_at_and_around_the_threshold() -> Non
 
 @pytest.mark.parametrize("model", [kernels.MODEL_PER_TABLE, kernels.MODEL_PER_TABLE_LOG, kernels.MODEL_THRESHOLD])
 def test_success_of_ratio_equals_the_table_on_the_db_value(model: int) -> None:
-    """P from the linear SINR equals _per_success_bisect on numpy's dB value, bit for bit, including the
+    """P from the linear SINR equals _per_success on numpy's dB value, bit for bit, including the
     table's ends, the ulps around them, far outside, and 0 / NaN."""
     sinr_db = np.array([-2.0, 0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
     per = np.array([1.0, 0.9, 0.7, 0.3, 0.09, 0.02, 0.002, 0.001])
@@ -60,7 +60,7 @@ def test_success_of_ratio_equals_the_table_on_the_db_value(model: int) -> None:
         if model == kernels.MODEL_THRESHOLD:
             want = 1.0 if d >= thr_db else 0.0
         else:
-            want = kernels._per_success_bisect(d, sinr_db, per, log_domain)
+            want = kernels._per_success(d, sinr_db, per, log_domain)
         assert got == want, (v, d, got, want)
     assert kernels._success_of_ratio(math.nan, kernels.MODEL_PER_TABLE, sinr_db, per, lo, hi, thr_db, thr) == 0.0
 

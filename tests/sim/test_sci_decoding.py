@@ -224,7 +224,7 @@ def test_half_duplex_receivers_record_no_sci_in_either_mode() -> None:
 
 
 # ------------------------------------------------------------- numpy vs the compiled period
-def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr() -> None:
+def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr(compiled_and_numpy: Callable[..., Any]) -> None:
     base = [
         "sim.warmup_subframes=300",
         "vehicles.density_veh_per_m=0.1",
@@ -235,20 +235,8 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr() -> None:
         # would record a different map (review of issue 13: at offset 0 and 0.1 veh/m it could not fail)
         "sps.sci_sinr_offset_db=-8",
     ]
-    runs = []
-    for compiled in (True, False):
-        sim = Simulator(apply_overrides(preset("highway"), base))
-        assert sim.compiled_period
-        sim.compiled_period = compiled
-        sim.compiled_min_links = 0  # the compiled chunk at any size
-        sim.reset(seed=4)
-        result = sim.run(650)  # ends mid-period: the SCI map of the period so far is compared too
-        runs.append((result.metrics.summary()["prr_mean"], sim.n_reselections, sim.resource.copy(), sim))
-    (p1, n1, r1, s1), (p2, n2, r2, s2) = runs
-    assert (p1, n1) == (p2, n2)
-    np.testing.assert_array_equal(r1, r2)
-    np.testing.assert_array_equal(s1.period_rsrp_dbm, s2.period_rsrp_dbm)
-    np.testing.assert_array_equal(s1._rssi_ring, s2._rssi_ring)
+    # ends mid-period: the SCI map of the period so far is compared too
+    s1, _, _, _ = compiled_and_numpy(apply_overrides(preset("highway"), base), 4, 300, 650)
     # the check can fail: with every SCI recorded (always) the map differs
     ref = Simulator(apply_overrides(preset("highway"), [b for b in base if not b.startswith("sps.sci")]))
     ref.reset(seed=4)
