@@ -1,6 +1,7 @@
 """Simulator cost vs vehicle count at corridor scale (issue 13): wall time and peak memory.
 
-The highway preset at 0.1 veh/m (road length N / 0.1 m, distances wrapped), links table off
+The highway-legacy preset (``--preset``: or highway, the standard's procedures) at 0.1 veh/m (road
+length N / 0.1 m, distances wrapped), links table off
 (``metrics.record_links=false``), with an interference and link cut-off ``link.max_range_m``. Each
 vehicle count runs in its own subprocess so its peak resident size (``ru_maxrss``) is its own:
 ``Simulator(cfg)``, ``reset`` with ``--warmup-s`` of warm-up, then ``run`` for ``--measure-s``.
@@ -12,7 +13,7 @@ LOS path loss of the preset, no shadowing) is ``--below-noise-db`` (10 dB) under
 noise at 5.9 GHz, h' = 1.5 m) that is about 2.8 km, where the preset's own default (1 km) leaves
 the received power 8 dB above noise. ``--max-range-m`` sets it directly.
 
-Run with ``python benchmarks/bench_scale.py [--sizes 1000 2000 5000 10000] [--preset highway-3gpp] [--label before]``;
+Run with ``python benchmarks/bench_scale.py [--sizes 1000 2000 5000 10000] [--preset highway] [--label before]``;
 prints a markdown table and writes ``benchmarks/results/bench_scale.json`` (rows are merged by
 label, so a ``before`` and an ``after`` run sit side by side). Single-threaded BLAS is forced so
 the figures are per core.
@@ -39,10 +40,10 @@ import numpy as np  # noqa: E402
 DENSITY = 0.1  # veh/m
 
 
-def config_for(n_vehicles: int, max_range_m: float, warmup_s: float, name: str = "highway"):  # type: ignore[no-untyped-def]
-    """The preset ``name`` (highway or highway-3gpp) with ``n_vehicles`` at 0.1 veh/m, the cut-off, links
-    table off; ``warmup_s`` of fixed warm-up (highway-3gpp: the warm-up runs until every vehicle has
-    reselected once, at least ``warmup_s``)."""
+def config_for(n_vehicles: int, max_range_m: float, warmup_s: float, name: str = "highway-legacy"):  # type: ignore[no-untyped-def]
+    """The preset ``name`` (highway-legacy, or highway: the standard's procedures; highway-3gpp is its
+    former name) with ``n_vehicles`` at 0.1 veh/m, the cut-off, links table off; ``warmup_s`` of fixed
+    warm-up (highway: the warm-up runs until every vehicle has reselected once, at least ``warmup_s``)."""
     from cv2x_marl.config import apply_overrides, preset
 
     return apply_overrides(
@@ -74,7 +75,7 @@ def cutoff_m(below_noise_db: float) -> float:
     return round(lo, 1)
 
 
-def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float, name: str = "highway") -> dict:
+def child(n_vehicles: int, max_range_m: float, warmup_s: float, measure_s: float, name: str = "highway-legacy") -> dict:
     """One measurement, in this process: returns the row (peak RSS of this process included)."""
     t0 = time.perf_counter()
     from cv2x_marl.sim import Simulator
@@ -123,7 +124,13 @@ def main() -> None:
     ap.add_argument("--measure-s", type=float, default=1.0, help="simulated measurement (s)")
     ap.add_argument("--below-noise-db", type=float, default=10.0)
     ap.add_argument("--max-range-m", type=float, default=None, help="cut-off (m); default from --below-noise-db")
-    ap.add_argument("--preset", default="highway", choices=["highway", "highway-3gpp"], help="scenario preset")
+    ap.add_argument(
+        "--preset",
+        default="highway-legacy",
+        choices=["highway-legacy", "highway", "highway-3gpp"],
+        help="scenario preset: highway-legacy (the simplified procedures; the tables of docs/performance.md's "
+        "'highway' columns), highway (the standard's; its former name highway-3gpp)",
+    )
     ap.add_argument("--label", default="current", help="name of this set of rows in the JSON (e.g. before, after)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_scale.json"))
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)

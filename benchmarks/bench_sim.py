@@ -56,7 +56,7 @@ def bench_highway(n_vehicles: int, seconds: float, repeat: int, max_range_m: flo
     density = 0.1
     length = n_vehicles / density
     cfg = apply_overrides(
-        preset("highway"),
+        preset("highway-legacy"),
         [
             f"road.length_m={length}",
             f"link.max_range_m={max_range_m}",
@@ -74,7 +74,8 @@ def bench_highway(n_vehicles: int, seconds: float, repeat: int, max_range_m: flo
         times.append(time.perf_counter() - t0)
     run_s = min(times)
     return {
-        "case": f"highway {n_vehicles} vehicles ({length:g} m, 0.1 veh/m), {seconds:g} s, cut-off {max_range_m:g} m",
+        "case": f"highway-legacy {n_vehicles} vehicles ({length:g} m, 0.1 veh/m), {seconds:g} s, "
+        f"cut-off {max_range_m:g} m",
         "n_vehicles": n_vehicles,
         "simulated_s": seconds,
         "run_s": run_s,

@@ -324,10 +324,10 @@ class ChannelConfig(Section):
         10.0, "Shadowing decorrelation distance (10 urban, 25 highway)", "m", 0.1, 1e4, lo_open=True
     )
     shadowing_correlation: str = _key(
-        "travelled",
-        "What the shadowing of a pair decorrelates with, rho = exp(-D / shadowing_decorrelation_m): travelled: D "
-        "= the sum of the distances both vehicles travelled (the model so far); pair_distance: D = the change of "
-        "the pair's distance since its last update (TR 36.885 A.1.4; issue 13)",
+        "pair_distance",
+        "What the shadowing of a pair decorrelates with, rho = exp(-D / shadowing_decorrelation_m): pair_distance: "
+        "D = the change of the pair's distance since its last update (TR 36.885 A.1.4; the default); travelled: D "
+        "= the sum of the distances both vehicles travelled (the paper presets' simplification)",
         choices=("travelled", "pair_distance"),
     )
     fading: str = _key(
@@ -381,28 +381,30 @@ class SpsConfig(Section):
         True, "Exclude candidates in the subframe of the UE's own transmission (not monitored: half duplex)"
     )
     reservation_signalling: str = _key(
-        "always",
-        "always: every SCI reserves its resource for the next period and the keep/reselect draw happens at the "
-        "period end (the model so far); standard: the draw happens when the counter reaches 1 and the last SCI "
-        "of a UE that will reselect carries no reservation (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1; issue 13)",
+        "standard",
+        "standard: the keep/reselect draw happens when the counter reaches 1 and the last SCI of a UE that will "
+        "reselect carries no reservation (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1; the default); always: every SCI "
+        "reserves its resource for the next period and the draw happens at the period end (the paper presets' "
+        "simplification)",
         choices=("always", "standard"),
     )
     reselection_timing: str = _key(
-        "period_end",
-        "When counters run and reselections happen: period_end: for every vehicle at the end of each reservation "
-        "period, on the sensing map of the period just ended (the model so far); per_ue: at each UE's own packet "
-        "arrival (its generation slot n): the counter counts down there, and a reselecting UE senses the 1000 ms "
-        "before n (SCIs heard earlier in the same period included) and selects in [n + T1, n + T2], from the same "
-        "period on when the resource falls after n (TS 36.321 5.14.1.1, TS 36.213 14.1.1.6; issue 13)",
+        "per_ue",
+        "When counters run and reselections happen: per_ue: at each UE's own packet arrival (its generation slot "
+        "n): the counter counts down there, and a reselecting UE senses the 1000 ms before n (SCIs heard earlier "
+        "in the same period included) and selects in [n + T1, n + T2], from the same period on when the resource "
+        "falls after n (TS 36.321 5.14.1.1, TS 36.213 14.1.1.6; the default); period_end: for every vehicle at the "
+        "end of each reservation period, on the sensing map of the period just ended (the paper presets' "
+        "simplification)",
         choices=("period_end", "per_ue"),
     )
     sci_decoding: str = _key(
-        "always",
+        "sinr",
         "Which SCIs a receiver decodes, and so which reservations its sensing excludes (TS 36.213 14.1.1.6): "
-        "always: every SCI not lost to half duplex or below radio.sensitivity_dbm (the model so far); sinr: the "
-        "standard's behaviour, only a decoded PSCCH counts, decided per receiver by a draw against the PSCCH "
-        "BLER at the link's SINR (same interference as the PSSCH in that subframe) plus sci_sinr_offset_db, "
-        "NIST's ns-3 PSCCH curve (sim/data/nist-pscch-awgn-siso.csv; docs/model.md; issue 13)",
+        "sinr: the standard's behaviour (the default), only a decoded PSCCH counts, decided per receiver by a "
+        "draw against the PSCCH BLER at the link's SINR (same interference as the PSSCH in that subframe) plus "
+        "sci_sinr_offset_db, NIST's ns-3 PSCCH curve (sim/data/nist-pscch-awgn-siso.csv; docs/model.md); always: "
+        "every SCI not lost to half duplex or below radio.sensitivity_dbm (the paper presets' simplification)",
         choices=("always", "sinr"),
     )
     sci_sinr_offset_db: float = _key(
@@ -414,11 +416,11 @@ class SpsConfig(Section):
         20.0,
     )
     sci_gates_pssch: bool = _key(
-        False,
+        True,
         "With sci_decoding=sinr: a receiver that misses the SCI cannot decode the PSSCH it schedules (SCI format "
         "1 carries the PSSCH's frequency resources and MCS, TS 36.212 5.4.3.1.2): a packet is received only if "
-        "both decode (P = P_PSSCH x P_SCI, one draw each); false: the PSSCH outcome alone, the SCI only steering "
-        "the sensing (the model so far)",
+        "both decode (P = P_PSSCH x P_SCI, one draw each; the default); false: the PSSCH outcome alone, the SCI "
+        "only steering the sensing (the paper presets'; must be false with sci_decoding=always)",
     )
 
     def _check(self) -> None:
@@ -465,18 +467,18 @@ class LinkConfig(Section):
         0.0,
     )
     inband_emission_model: str = _key(
-        "flat",
-        "In-band emission from transmissions on other subchannels of the same subframe: flat: the constant "
-        "inband_emission_db (the model so far; none when that is null); 3gpp: the TS 36.101 6.5.2.3 in-band "
-        "emission mask with TR 36.843 A.2.1.5's W, X, Y, Z as WiLabV2Xsim uses them (general, IQ image, carrier "
-        "leakage; sim/inband.py, docs/model.md; issue 13)",
+        "3gpp",
+        "In-band emission from transmissions on other subchannels of the same subframe: 3gpp: the TS 36.101 "
+        "6.5.2.3 in-band emission mask with TR 36.843 A.2.1.5's W, X, Y, Z as WiLabV2Xsim uses them (general, IQ "
+        "image, carrier leakage; sim/inband.py, docs/model.md; the default); flat: the constant "
+        "inband_emission_db (none when that is null: the paper presets')",
         choices=("flat", "3gpp"),
     )
     per_interpolation: str = _key(
-        "linear",
-        "How per_table interpolates the PER curve between its points: linear: PER linear in SINR (dB) (the model "
-        "so far); log: ln PER linear in SINR (dB), PER geometric between points, which follows the waterfall "
-        "(7 dB on the r0.5 curve: 0.055 linear, 0.042 log; issue 13). Same at the table points",
+        "log",
+        "How per_table interpolates the PER curve between its points: log: ln PER linear in SINR (dB), PER "
+        "geometric between points, which follows the waterfall (7 dB on the r0.5 curve: 0.055 linear, 0.042 log; "
+        "the default); linear: PER linear in SINR (dB) (the paper presets'). Same at the table points",
         choices=("linear", "log"),
     )
     max_range_m: float | None = _key(
@@ -538,11 +540,11 @@ class SimConfig(Section):
         1000, "Subframes run before measuring (fills the sensing window)", "subframes", 0, 10**7
     )
     warmup_mode: str = _key(
-        "fixed",
-        "fixed: warm up for warmup_subframes (the model so far; vehicles whose counter has not expired are "
-        "still on their random initial resource when measuring starts); until_reselected: then go on a period "
-        "at a time until every vehicle has made a sensing-based selection (issue 13). The run summary reports "
-        "the SPS state at the start of the measurement (sps_state_at_start)",
+        "until_reselected",
+        "until_reselected: warm up for warmup_subframes, then go on a period at a time until every vehicle has "
+        "made a sensing-based selection (the default); fixed: warmup_subframes only (the paper presets'; vehicles "
+        "whose counter has not expired are still on their random initial resource when measuring starts). The "
+        "run summary reports the SPS state at the start of the measurement (sps_state_at_start)",
         choices=("fixed", "until_reselected"),
     )
 
@@ -635,59 +637,71 @@ class ScenarioConfig:
         return min(3600.0, self.road.length_m / max(v.speed_min_mps, 1.0))
 
 
-PRESETS: dict[str, dict[str, dict[str, Any]]] = {
-    # Table 1 of the paper; READING.md settles the gaps.
-    "paper": {},
-    # 3GPP TR 36.885 highway-like case at 5.9 GHz, 10 MHz (5 subchannels of 10 RB).
-    "highway": {
-        "road": {"kind": "highway", "length_m": 2000.0, "lanes_per_direction": 3, "wrap_distances": True},
-        "vehicles": {"density_veh_per_m": 0.1, "speed_min_mps": 19.44, "speed_max_mps": 38.89},
-        "radio": {"tx_power_dbm": 23.0, "carrier_hz": 5.9e9, "noise_dbm": -111.45},
-        "channel": {"los": "always", "shadowing_decorrelation_m": 25.0, "effective_height_m": 1.5},
-        "traffic": {"synchronous": False},
-        "sps": {"n_subchannels": 5, "selection_window_subframes": 100, "selection": "3gpp"},
-        "link": {"max_range_m": 1000.0},
-        "metrics": {"max_distance_m": 1000.0},
-        "sim": {"n_subframes": 5000},
+#: The simplified Mode 4 procedures of the paper's model (and of this package before issue 13), one value
+#: per fidelity switch (docs/model.md, "Fidelity switches"): every SCI reserves, all reselections at the
+#: period end, every SCI above the floor decoded, PER linear between table points, flat (here: no) in-band
+#: emission, shadowing decorrelated with the distance travelled, a fixed warm-up. The paper presets pin
+#: them, so the paper's studies, the env and the shipped models keep their numbers; the defaults are the
+#: standard's (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1, TS 36.101 6.5.2.3, TR 36.885 A.1.4).
+LEGACY_MODE4: dict[str, dict[str, Any]] = {
+    "channel": {"shadowing_correlation": "travelled"},
+    "sps": {
+        "reservation_signalling": "always",
+        "reselection_timing": "period_end",
+        "sci_decoding": "always",
+        "sci_gates_pssch": False,
     },
+    "link": {"per_interpolation": "linear", "inband_emission_model": "flat"},
+    "sim": {"warmup_mode": "fixed"},
+}
+
+
+def _merged(*layers: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Section-wise union of preset layers, later layers winning key by key."""
+    out: dict[str, dict[str, Any]] = {}
+    for layer in layers:
+        for section, values in layer.items():
+            out.setdefault(section, {}).update(values)
+    return out
+
+
+_HIGHWAY: dict[str, dict[str, Any]] = {
+    "road": {"kind": "highway", "length_m": 2000.0, "lanes_per_direction": 3, "wrap_distances": True},
+    "vehicles": {"density_veh_per_m": 0.1, "speed_min_mps": 19.44, "speed_max_mps": 38.89},
+    "radio": {"tx_power_dbm": 23.0, "carrier_hz": 5.9e9, "noise_dbm": -111.45},
+    "channel": {"los": "always", "shadowing_decorrelation_m": 25.0, "effective_height_m": 1.5},
+    "traffic": {"synchronous": False},
+    "sps": {"n_subchannels": 5, "selection_window_subframes": 100, "selection": "3gpp"},
+    "link": {"max_range_m": 1000.0},
+    "metrics": {"max_distance_m": 1000.0},
+    "sim": {"n_subframes": 5000},
+}
+
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    # Table 1 of the paper; READING.md settles the gaps. The paper's simplified SPS (LEGACY_MODE4).
+    "paper": _merged(LEGACY_MODE4),
+    # 3GPP TR 36.885 highway-like case at 5.9 GHz, 10 MHz (5 subchannels of 10 RB), with the standard's
+    # Mode 4 procedures (the defaults; docs/model.md, "Fidelity switches").
+    "highway": _merged(_HIGHWAY),
+    # The highway case with the simplified procedures of the paper's model (the `highway` preset before
+    # issue 13 flipped the defaults).
+    "highway-legacy": _merged(_HIGHWAY, LEGACY_MODE4),
+    # The name `highway` had while the defaults were the simplified model: the same scenario as `highway`,
+    # kept so configuration files and runs that name it still load.
+    "highway-3gpp": _merged(_HIGHWAY),
     # The paper's scenario with vehicles driven by SUMO: the 4 x 4 two-way grid of the 450 m region,
     # generated with netgenerate; 21 vehicles on random walks (docs/mobility.md). Needs the `sumo` extra.
-    "sumo-grid": {
-        "vehicles": {"mobility": "sumo"},
-    },
+    "sumo-grid": _merged(LEGACY_MODE4, {"vehicles": {"mobility": "sumo"}}),
     # The highway preset with vehicles driven by SUMO (car following, lane changes): a straight two-way
     # road of road.length_m, vehicles entering at either end as Poisson flows sized for the preset's
     # density and leaving at the other end (vehicles.population=open; docs/mobility.md).
-    "sumo-highway": {},  # filled below from "highway"
+    "sumo-highway": _merged(
+        _HIGHWAY, {"vehicles": {"mobility": "sumo", "population": "open"}, "road": {"wrap_distances": False}}
+    ),
     # The paper's grid with SUMO's own demand: randomTrips.py origin-destination trips sized for the
     # paper's 21 vehicles on average, entering and leaving at the fringe (vehicles.population=open;
     # docs/mobility.md). The env needs a fixed population: use sumo-grid there.
-    "sumo-grid-trips": {
-        "vehicles": {"mobility": "sumo", "population": "open"},
-    },
-}
-# The highway preset with every standard procedure the simulator otherwise simplifies (issue 13;
-# docs/model.md, "Fidelity switches"): TS 36.321 5.14.1.1 reservation signalling and per-UE
-# reselection timing, sensing-based start, decoded SCIs only, log-domain PER interpolation, the
-# TS 36.101 in-band emission mask, pair-geometry shadowing decorrelation. Slower than "highway"
-# (numpy period only; per-UE timing splits periods).
-PRESETS["highway-3gpp"] = {
-    **{k: dict(v) for k, v in PRESETS["highway"].items()},
-    "sps": {
-        **PRESETS["highway"]["sps"],
-        "reservation_signalling": "standard",
-        "reselection_timing": "per_ue",
-        "sci_decoding": "sinr",
-        "sci_gates_pssch": True,
-    },
-    "link": {**PRESETS["highway"]["link"], "per_interpolation": "log", "inband_emission_model": "3gpp"},
-    "channel": {**PRESETS["highway"]["channel"], "shadowing_correlation": "pair_distance"},
-    "sim": {**PRESETS["highway"]["sim"], "warmup_mode": "until_reselected"},
-}
-PRESETS["sumo-highway"] = {
-    **{k: dict(v) for k, v in PRESETS["highway"].items()},
-    "vehicles": {**PRESETS["highway"]["vehicles"], "mobility": "sumo", "population": "open"},
-    "road": {**PRESETS["highway"]["road"], "wrap_distances": False},
+    "sumo-grid-trips": _merged(LEGACY_MODE4, {"vehicles": {"mobility": "sumo", "population": "open"}}),
 }
 
 
@@ -721,8 +735,8 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset (``paper``, ``highway``, ``highway-3gpp``, ``sumo-grid``, ``sumo-highway`` or
-    ``sumo-grid-trips``)."""
+    """A named preset: ``paper``, ``highway``, ``highway-legacy``, ``highway-3gpp`` (``highway``'s former
+    name), ``sumo-grid``, ``sumo-highway`` or ``sumo-grid-trips``."""
     if name not in PRESETS:
         raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     return from_dict(PRESETS[name])
@@ -769,11 +783,11 @@ def config_markdown() -> str:
         "follow the YAML 1.2 core schema (`5.9e9` is a number, `010` is 10, `1:40` and `yes` are strings;",
         "`cv2x_marl/yamlcore.py`). A scenario has at most 100,000 vehicles, counted after",
         "`vehicles.density_veh_per_m` x road length.",
-        "Defaults are the `paper` preset (Table 1 of the paper); the other presets override:",
+        "The defaults are the paper's scenario (Table 1 of the paper: the 450 m grid, 21 vehicles) with",
+        "the standard's Mode 4 procedures (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1, TS 36.101 6.5.2.3,",
+        'TR 36.885 A.1.4; docs/model.md, "Fidelity switches"). The presets override them:',
     ]
     for name, overrides in PRESETS.items():
-        if name == "paper":
-            continue
         lines += ["", f"`{name}`:", ""]
         for section, values in overrides.items():
             lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))

@@ -1,10 +1,12 @@
 """Configuration: validation by key name, presets, overrides, docs in sync."""
 
+import json
 from pathlib import Path
 
 import pytest
 
 from cv2x_marl.config import (
+    LEGACY_MODE4,
     ConfigError,
     apply_overrides,
     config_markdown,
@@ -67,12 +69,11 @@ def test_highway_preset_density() -> None:
     assert cfg.n_vehicles == 200  # 0.1 veh/m on 2 km
 
 
-def test_highway_3gpp_preset_is_highway_with_every_standard_switch() -> None:
-    """``highway-3gpp`` differs from ``highway`` exactly in the fidelity switches of issue 13, each at
-    the standard's value (docs/model.md)."""
-    std, base = to_dict(preset("highway-3gpp")), to_dict(preset("highway"))
-    differs = {(sec, k): v for sec, keys in std.items() for k, v in keys.items() if base[sec][k] != v}
-    assert differs == {
+def test_defaults_are_the_standard_and_legacy_mode4_is_their_complement() -> None:
+    """The defaults are the standard's value of every issue 13 fidelity switch; ``LEGACY_MODE4`` holds the
+    simplified value of exactly those keys, and ``highway`` differs from ``highway-legacy`` in exactly them
+    (docs/model.md)."""
+    standard = {
         ("sps", "reservation_signalling"): "standard",
         ("sps", "reselection_timing"): "per_ue",
         ("sps", "sci_decoding"): "sinr",
@@ -82,6 +83,26 @@ def test_highway_3gpp_preset_is_highway_with_every_standard_switch() -> None:
         ("channel", "shadowing_correlation"): "pair_distance",
         ("sim", "warmup_mode"): "until_reselected",
     }
+    defaults = to_dict(from_dict({}))
+    assert {key: defaults[key[0]][key[1]] for key in standard} == standard
+    assert {(sec, k) for sec, keys in LEGACY_MODE4.items() for k in keys} == set(standard)
+    std, legacy = to_dict(preset("highway")), to_dict(preset("highway-legacy"))
+    differs = {(sec, k): v for sec, keys in std.items() for k, v in keys.items() if legacy[sec][k] != v}
+    assert differs == standard
+    assert to_dict(preset("highway-3gpp")) == std  # the former name of the standard highway
+
+
+@pytest.mark.parametrize("name", ["paper", "highway-legacy", "highway", "highway-3gpp", "sumo-grid", "sumo-grid-trips"])
+def test_presets_resolve_as_before_the_defaults_flipped(name: str) -> None:
+    """Every key a preset had at 685db59 (before the flip; tests/data/presets_685db59.json, recorded from
+    that commit's ``to_dict(preset(...))`` under today's names) keeps its value: the paper presets, the env
+    and the shipped models run what they ran."""
+    recorded = json.loads((Path(__file__).parent / "data" / "presets_685db59.json").read_text())["presets"][name]
+    now = to_dict(preset(name))
+    changed = {
+        f"{sec}.{k}": (v, now[sec][k]) for sec, keys in recorded.items() for k, v in keys.items() if now[sec][k] != v
+    }
+    assert changed == {}
 
 
 @pytest.mark.parametrize(

@@ -81,7 +81,7 @@ def test_pair_geometry_is_the_displacement_table() -> None:
     assert wrapped.disp_m[:, 0, 2].tolist() == [10.0, 2.0] and wrapped.disp_m[:, 2, 0].tolist() == [-10.0, -2.0]
 
 
-@pytest.mark.parametrize("name", ["paper", "highway"])
+@pytest.mark.parametrize("name", ["paper", "highway-legacy"])
 def test_snapshot_links_match_the_simulators_own_links(name: str) -> None:
     """Every link the simulator decodes in the period after the snapshot, wrap-around included."""
     cfg = from_dict({"sim": {"warmup_subframes": 300}}, preset(name))

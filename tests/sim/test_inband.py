@@ -252,7 +252,7 @@ def test_the_env_evaluators_follow_the_3gpp_model() -> None:
         np.testing.assert_allclose(p[links["rx"][sel]], links["p_success"][sel], rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.parametrize("name", ["paper", "highway"])
+@pytest.mark.parametrize("name", ["paper", "highway-legacy"])
 def test_snapshot_links_match_the_simulator_with_the_3gpp_model(name: str) -> None:
     cfg = apply_overrides(preset(name), ["sim.warmup_subframes=300", "link.inband_emission_model=3gpp"])
     sim = Simulator(cfg)
@@ -292,13 +292,13 @@ def test_3gpp_lowers_prr_on_the_paper_preset() -> None:
 
 
 def test_weights_of_either_model() -> None:
-    cfg = apply_overrides(preset("highway"), ["link.inband_emission_model=3gpp"])
+    cfg = apply_overrides(preset("highway-legacy"), ["link.inband_emission_model=3gpp"])
     w = pool_leakage_weights(cfg)
     assert w is not None and np.all(np.diag(w) == 0.0)
     np.testing.assert_allclose(w + np.eye(5), leakage_matrix(5, 10, 23.0))
-    flat = pool_leakage_weights(apply_overrides(preset("highway"), ["link.inband_emission_db=-20"]))
+    flat = pool_leakage_weights(apply_overrides(preset("highway-legacy"), ["link.inband_emission_db=-20"]))
     assert flat is not None and np.all(flat[~np.eye(5, dtype=bool)] == pytest.approx(0.01))
-    assert pool_leakage_weights(preset("highway")) is None
+    assert pool_leakage_weights(preset("highway-legacy")) is None
 
 
 def test_bad_combinations_are_refused_by_name() -> None:
@@ -329,17 +329,18 @@ def test_compiled_period_with_inband_emission_equals_the_numpy_period(
     order as Simulator._chunk, so the same outcomes, PRR sums, S-RSSI (leakage included) and reselections;
     per_ue cuts the period into chunks of a few transmitters (the subset path)."""
     base = ["vehicles.density_veh_per_m=0.1", "road.length_m=2500", "metrics.record_links=false"]
-    a, ma, _, _ = compiled_and_numpy(apply_overrides(preset("highway"), [*base, *extra]), 1, 250, 440)
+    a, ma, _, _ = compiled_and_numpy(apply_overrides(preset("highway-legacy"), [*base, *extra]), 1, 250, 440)
     assert a.n_reselections > 0
     # and the leakage is really there: the same run without it decodes more
-    plain = Simulator(apply_overrides(preset("highway"), base))
+    plain = Simulator(apply_overrides(preset("highway-legacy"), base))
     plain.reset(seed=1, warmup_subframes=250)
     assert plain.run(450).metrics.bin_decoded.sum() > ma.bin_decoded.sum()
 
 
 def test_inband_leakage_sums_each_victim_row_by_hand() -> None:
     """Simulator._inband_leakage (the numpy side of the compiled chunk's sums): leak[v] = sum_i M[v, i] t[i]."""
-    sim = Simulator(apply_overrides(preset("highway"), ["road.length_m=1000", "link.inband_emission_model=3gpp"]))
+    cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.inband_emission_model=3gpp"])
+    sim = Simulator(cfg)
     assert sim._leakage is not None
     total = np.zeros(sim.n * sim.n_res)
     row = 7 * sim.rri + 31  # receiver 7, subframe 31

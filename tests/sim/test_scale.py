@@ -127,7 +127,7 @@ def test_lazy_snapshot_equals_the_eager_one(monkeypatch: pytest.MonkeyPatch) -> 
 def test_sparse_mean_power_lookup_equals_the_dense_one(monkeypatch: pytest.MonkeyPatch) -> None:
     _small_sparse(monkeypatch)
     cfg = apply_overrides(
-        preset("highway"),
+        preset("highway-legacy"),
         ["road.length_m=4000", "link.max_range_m=800", "channel.fading=rayleigh", "link.model=rayleigh"],
     )
     sim = Simulator(cfg)
@@ -164,7 +164,14 @@ def test_nothing_n_by_n_with_a_cut_off() -> None:
     for name, arr in found.items():
         assert sum(d == n for d in arr.shape) <= 1, (name, arr.shape)
         # N x resources (x periods): linear in N
-        if name not in ("_rssi_ring", "_period_rssi", "_period_sci_mw", "_chunk_total", "_chunk_total_slot"):
+        if name not in (
+            "_rssi_ring",
+            "_period_rssi",
+            "_period_sci_mw",
+            "_prev_sci_mw",
+            "_chunk_total",
+            "_chunk_total_slot",
+        ):
             assert arr.size < n * (n - 1) / 8, (name, arr.shape)
     # ~7 % of the pairs in range (2 km of a 30 km ring)
     assert 0.05 < sim.shadowing.n_pairs / (n * (n - 1) / 2) < 0.08

@@ -236,9 +236,9 @@ def test_the_compiled_sparse_period_equals_the_numpy_period_with_sinr(compiled_a
         "sps.sci_sinr_offset_db=-8",
     ]
     # ends mid-period: the SCI map of the period so far is compared too
-    s1, _, _, _ = compiled_and_numpy(apply_overrides(preset("highway"), base), 4, 300, 650)
+    s1, _, _, _ = compiled_and_numpy(apply_overrides(preset("highway-legacy"), base), 4, 300, 650)
     # the check can fail: with every SCI recorded (always) the map differs
-    ref = Simulator(apply_overrides(preset("highway"), [b for b in base if not b.startswith("sps.sci")]))
+    ref = Simulator(apply_overrides(preset("highway-legacy"), [b for b in base if not b.startswith("sps.sci")]))
     ref.reset(seed=4)
     ref.run(650)
     assert np.sum(ref.period_rsrp_dbm != s1.period_rsrp_dbm) > 0
@@ -252,7 +252,7 @@ def test_sinr_records_a_subset_of_the_scis_always_records() -> None:
     base = ["vehicles.density_veh_per_m=0.3", "metrics.record_links=false"]
     maps = []
     for mode in ("always", "sinr"):
-        sim = Simulator(apply_overrides(preset("highway"), [*base, f"sps.sci_decoding={mode}"]))
+        sim = Simulator(apply_overrides(preset("highway-legacy"), [*base, f"sps.sci_decoding={mode}"]))
         sim.reset(seed=4, warmup_subframes=0)
         sim.run(99)
         maps.append(sim.period_rsrp_dbm.copy())
@@ -272,12 +272,12 @@ REFERENCE = {
         (0.45889578367170614, (40, 0), 2328, "8fab92e8dab86757", 11541.310288780112, 3449),
     ),
     "highway": (
-        ("highway", ["sim.warmup_subframes=300", "vehicles.density_veh_per_m=0.05"], 3, 1000),
+        ("highway-legacy", ["sim.warmup_subframes=300", "vehicles.density_veh_per_m=0.05"], 3, 1000),
         (0.9443711382234108, (89, 0), 1246673, "da2d33d2c534f7fe", 2156617.975471966, 92718),
     ),
     "highway_compiled": (
         (
-            "highway",
+            "highway-legacy",
             [
                 "sim.warmup_subframes=300",
                 "vehicles.density_veh_per_m=0.05",
@@ -339,7 +339,7 @@ def test_sinr_leaves_the_pssch_draws_alone_until_a_selection_differs() -> None:
     out = []
     for mode in ("always", "sinr"):
         sim = Simulator(
-            apply_overrides(preset("highway"), ["vehicles.density_veh_per_m=0.05", f"sps.sci_decoding={mode}"])
+            apply_overrides(preset("highway-legacy"), ["vehicles.density_veh_per_m=0.05", f"sps.sci_decoding={mode}"])
         )
         sim.reset(seed=2, warmup_subframes=0)
         links = sim.run(99).links
@@ -365,7 +365,7 @@ def test_sci_gates_pssch_is_refused_without_the_sci_draws() -> None:
         ConfigError, match=r"sps\.sci_gates_pssch=true needs .*sps\.sci_decoding=sinr \(it is 'always'\)"
     ):
         apply_overrides(preset("paper"), ["sps.sci_gates_pssch=true"])
-    assert preset("highway-3gpp").sps.sci_gates_pssch and not preset("highway").sps.sci_gates_pssch
+    assert preset("highway-3gpp").sps.sci_gates_pssch and not preset("highway-legacy").sps.sci_gates_pssch
 
 
 def test_the_gate_multiplies_p_by_the_sci_probability_and_only_removes_receptions() -> None:
@@ -382,7 +382,7 @@ def test_the_gate_multiplies_p_by_the_sci_probability_and_only_removes_reception
     ]
     out = []
     for gate in ("false", "true"):
-        sim = Simulator(apply_overrides(preset("highway"), [*base, f"sps.sci_gates_pssch={gate}"]))
+        sim = Simulator(apply_overrides(preset("highway-legacy"), [*base, f"sps.sci_gates_pssch={gate}"]))
         sim.reset(seed=4, warmup_subframes=200)
         links = sim.run(300).links
         assert links is not None
@@ -410,7 +410,7 @@ def test_the_compiled_period_equals_the_numpy_period_with_the_gate(
     extra: list[str], compiled_and_numpy: Callable[..., Any]
 ) -> None:
     cfg = apply_overrides(
-        preset("highway"),
+        preset("highway-legacy"),
         [
             "road.length_m=2500",
             "metrics.record_links=false",
