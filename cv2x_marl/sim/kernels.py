@@ -1174,3 +1174,41 @@ def shadowing_update_sparse(
             rho = math.exp(-(reference[k] - last) / decorrelation_m)
         z[k] = rho * z_prev[k] + math.sqrt(1.0 - rho * rho) * rng.standard_normal()
     return z
+
+
+@njit(cache=True)
+def filter_pairs_within_range(
+    pos_m: FloatArray, box_m: FloatArray, range_m: float, cand_i: NDArray[np.int32], cand_j: NDArray[np.int32]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The candidate pairs at most ``range_m`` apart, in candidate order: a Verlet list's step.
+
+    The acceptance test is :func:`pairs_within_range`'s, to the bit (minimum-image ``dx``, ``dy``,
+    ``dx^2 + dy^2 <= r^2``), so when the candidates hold every pair in range, sorted by ``(i, j)``
+    (``pairs_within_range`` at a larger radius, while no vehicle has moved more than half the
+    difference since), the result equals ``pairs_within_range(pos_m, box_m, range_m)``.
+
+    Args:
+        pos_m: [N, 2] positions, m.
+        box_m: [2] period of each axis, m (inf: not periodic).
+        range_m: the cut-off, m.
+        cand_i, cand_j: [C] candidate pairs, ``i < j`` (int32: the list is kept between periods).
+
+    Returns:
+        ``(i, j)``, each [P] int64, ``P <= C``.
+    """
+    bx, by = box_m[0], box_m[1]
+    r2 = range_m * range_m
+    c = cand_i.shape[0]
+    out_i = np.empty(c, dtype=np.int64)
+    out_j = np.empty(c, dtype=np.int64)
+    m = 0
+    for k in range(c):
+        i = cand_i[k]
+        j = cand_j[k]
+        dx = _min_image(pos_m[j, 0] - pos_m[i, 0], bx)
+        dy = _min_image(pos_m[j, 1] - pos_m[i, 1], by)
+        if dx * dx + dy * dy <= r2:
+            out_i[m] = i
+            out_j[m] = j
+            m += 1
+    return out_i[:m].copy(), out_j[:m].copy()

@@ -85,6 +85,7 @@ SPARSE_STATE_MIN_VEHICLES = 2500
 _SPARSE_SHADOWING_PER_PAIR = 24  # SparseShadowing: keys (int64), Z and last read (float64)
 _SPARSE_SHADOWING_UPDATE_PER_PAIR = 41  # ... while updated: keys, reference, positions, last Z, new Z, order check
 _LAZY_SNAPSHOT_PER_PAIR = 25  # _LazySnapshot until read: i, j (int64), LOS (bool), mean power (float64)
+_PAIR_LIST_PER_PAIR = 8.4  # Simulator._pair_list: the Verlet list's i, j (int32) at the cut-off + 5 %
 
 #: below this estimate, check_memory does not read /proc/meminfo (the env builds small simulators often)
 QUICK_PASS_BYTES = 256 * 2**20
@@ -152,6 +153,7 @@ def estimate_memory_bytes(cfg: ScenarioConfig, n_subframes: int | None = None) -
         once, so they do not add up to the total):
 
         * ``pair_index``: the all-pairs index (two int64 per vehicle pair; twice that while built);
+        * ``pair_list``: with a cut-off, the Verlet list of the pairs in range (two int32 per pair);
         * ``shadowing``: the dense N x N shadowing state (while initialised: the draw and its copies);
         * ``snapshot``: the N x N LOS and shadowing matrices of the snapshot ``reset`` returns;
         * ``sensing``: the sensing window of S-RSSI per vehicle and resource, and reselection;
@@ -231,7 +233,8 @@ def _estimate(
     co_channel = (per_term if record else _RAYLEIGH_PER_TERM if rayleigh else 0) * terms
     table = LINK_ROW_BYTES * rows
 
-    state = pair_index + shadowing + sensing + _VEHICLE_BYTES * n_arr + last
+    pair_list = _PAIR_LIST_PER_PAIR * p if cfg.link.max_range_m is not None else 0.0
+    state = pair_index + pair_list + shadowing + sensing + _VEHICLE_BYTES * n_arr + last
     phases = (
         pair_index_build,  # Simulator.__init__
         pair_index + (shadowing if sparse else _SHADOWING_INIT_PER_CELL * cells),  # reset: Shadowing.__init__
@@ -243,6 +246,7 @@ def _estimate(
     )
     return {
         "pair_index": pair_index_build,
+        "pair_list": pair_list,
         "shadowing": shadowing_peak,
         "snapshot": snapshot + snapshot_build,
         "sensing": sensing + select,

@@ -1,0 +1,137 @@
+"""The Verlet list of the pairs in range (``Simulator.pair_skin_m``): every period's pairs equal a fresh
+sweep's, in the same order, through rebuilds, wrap-around, agent offsets and open populations; the
+runs are identical to runs that sweep every period."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.sim import Simulator, kernels
+
+
+@pytest.mark.parametrize("wrap", [True, False])
+def test_filtered_candidates_equal_the_sweep_at_the_cut_off(wrap: bool) -> None:
+    rng = np.random.default_rng(7)
+    box = np.array([3000.0, np.inf]) if wrap else np.full(2, np.inf)
+    for n, r in ((50, 400.0), (400, 250.0), (1000, 900.0)):
+        pos0 = np.column_stack((rng.uniform(0, 3000, n), rng.uniform(0, 20, n)))
+        ci, cj = kernels.pairs_within_range(pos0, box, r + 60.0)
+        for _ in range(5):  # moves of at most 29.9 m each: no pair from outside r + 60 comes within r
+            step = rng.uniform(-1, 1, (n, 2))
+            pos = pos0 + 29.9 * step / np.linalg.norm(step, axis=1, keepdims=True) * rng.uniform(0, 1, (n, 1))
+            i, j = kernels.filter_pairs_within_range(pos, box, r, ci, cj)
+            ri, rj = kernels.pairs_within_range(pos, box, r)
+            np.testing.assert_array_equal(i, ri)
+            np.testing.assert_array_equal(j, rj)
+            assert ri.size < ci.size  # the skin holds pairs that the filter drops
+
+
+def _run_pairs(
+    cfg: object, skin: float, periods: int, offsets: bool = False
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], Simulator, int]:
+    """Each period's links (tx, rx), the simulator, and how many times the pair list was built."""
+    sim = Simulator(cfg)  # type: ignore[arg-type]
+    sim.pair_skin_m = skin
+    sim.reset(3)
+    out = []
+    rng = np.random.default_rng(0)
+    builds, last = 0, None
+    for _ in range(periods):
+        if offsets:  # the env's agents move vehicles off their road positions
+            sim.set_offsets(rng.uniform(-2, 2, (sim.n, 2)))
+        geo = sim._period_geometry()
+        out.append((geo.tx.copy(), geo.rx.copy()))
+        if sim._pair_list is not last:
+            builds, last = builds + 1, sim._pair_list
+        sim.run(sim.rri)
+    return out, sim, builds
+
+
+@pytest.mark.parametrize("offsets", [False, True])
+def test_simulator_pairs_equal_a_sweep_every_period(offsets: bool) -> None:
+    """Highway ring with a 300 m cut-off and its default 15 m skin: the list is rebuilt every few periods
+    (vehicles move up to 3.9 m per period), and every period's links, and the whole run, equal a sweep's."""
+    cfg = apply_overrides(
+        preset("highway-legacy"),
+        ["road.length_m=1500", "link.max_range_m=300", "metrics.max_distance_m=300", "sim.warmup_subframes=0"],
+    )
+    skin_pairs, a, builds = _run_pairs(cfg, 15.0, 25, offsets)
+    sweep_pairs, b, none = _run_pairs(cfg, 0.0, 25, offsets)
+    assert none == 0 and b._pair_list is None
+    assert 2 <= builds <= 20  # rebuilt on the way, but not every period
+    for (tx_a, rx_a), (tx_b, rx_b) in zip(skin_pairs, sweep_pairs, strict=True):
+        np.testing.assert_array_equal(tx_a, tx_b)
+        np.testing.assert_array_equal(rx_a, rx_b)
+    assert a.last_links is not None and b.last_links is not None
+    for x, y in zip(a.last_links, b.last_links, strict=True):
+        np.testing.assert_array_equal(x, y)
+    # a skin of 5 % of the cut-off by default
+    assert Simulator(cfg).pair_skin_m == pytest.approx(15.0)
+
+
+def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
+    cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.max_range_m=200"])
+    sim = Simulator(cfg)
+    sim.pair_skin_m = 10.0
+    sim.reset(1, warmup_subframes=0)
+    pos = np.ascontiguousarray(sim._period_geometry().positions_m)
+    built = sim._pair_list
+    assert built is not None
+    offsets = np.zeros((sim.n, 2))
+    offsets[4, 0] = 4.9  # 2 x 4.9 < 10: the list stands
+    sim._pairs(pos + offsets)
+    assert sim._pair_list is built
+    offsets[4, 0] = 5.1  # 2 x 5.1 > 10: rebuilt
+    i, j = sim._pairs(pos + offsets)
+    assert sim._pair_list is not built
+    box = sim.road.periodic_box_m
+    ri, rj = kernels.pairs_within_range(pos + offsets, box, 200.0)
+    np.testing.assert_array_equal(i, ri)
+    np.testing.assert_array_equal(j, rj)
+
+
+def _trace(path: Path, seconds: float = 4.0) -> Path:
+    """Four vehicles driving apart and together (pairs leave and enter a 60 m range); b leaves at 1 s and
+    d takes its slot."""
+    lines = ["<fcd-export>"]
+    for k in range(round(seconds / 0.1) + 1):
+        t = k * 0.1
+        lines.append(f'<timestep time="{t:.2f}">')
+        for i, v in enumerate(["a", "c", "b" if t < 1.0 - 1e-9 else "d", "e"]):
+            x = 50 + 30 * i + (15, -10, 5, -15)[i] * t
+            lines.append(f'<vehicle id="{v}" x="{x:.3f}" y="56.25" angle="90" speed="1"/>')
+        lines.append("</timestep>")
+    lines.append("</fcd-export>")
+    path.write_text("\n".join(lines))
+    return path
+
+
+def test_open_population_pairs_equal_a_sweep(tmp_path: Path) -> None:
+    cfg = apply_overrides(
+        preset("paper"),
+        [
+            "vehicles.mobility=trace",
+            f"vehicles.trace_file={_trace(tmp_path / 'fcd.xml')}",
+            "vehicles.population=open",
+            "vehicles.sumo_begin_s=0",
+            "vehicles.capacity=5",
+            "sim.warmup_subframes=0",
+            "link.max_range_m=60",
+            "metrics.interferer_range_m=60",
+        ],
+    )
+    skin_pairs, a, builds = _run_pairs(cfg, 4.0, 30)
+    sweep_pairs, _, _ = _run_pairs(cfg, 0.0, 30)
+    assert builds >= 2  # the list is rebuilt when the slots change, and when vehicles moved 2 m
+    sizes = []
+    for (tx_a, rx_a), (tx_b, rx_b) in zip(skin_pairs, sweep_pairs, strict=True):
+        np.testing.assert_array_equal(tx_a, tx_b)
+        np.testing.assert_array_equal(rx_a, rx_b)
+        sizes.append(tx_a.size)
+    steps = np.diff(sizes)
+    assert np.any(steps > 0) and np.any(steps < 0)  # pairs came into range (a, e) and went out of it (c, d)
+    assert a.n_departures == 1
