@@ -666,9 +666,10 @@ def _interp_clamped(x: float, xp: FloatArray, fp: FloatArray, left: float, right
 
 
 #: bytes of one tile's power-sum scratch in :func:`period_chunk` (N receivers x the tile's resources,
-#: float64; the tile's SCI maxima take as much again): with both, about the L2 cache of the development
-#: machine (1 MiB per core)
-CHUNK_TILE_BYTES = 2**19
+#: float64; the tile's SCI maxima take as much again): one subframe per tile from about 330 vehicles with
+#: 5 subchannels (measured fastest at 2,000 and 10,000 vehicles, against 2-6 subframes); a small
+#: scenario runs a few tiles of many subframes
+CHUNK_TILE_BYTES = 2**16
 
 
 def chunk_tile_subframes(n: int, n_sub: int, rri: int, tile_bytes: int | None = None) -> int:
@@ -728,7 +729,7 @@ def period_chunk(
     NDArray[np.int64],
     FloatArray,
 ]:
-    """One chunk of the simulator's period (``Simulator._chunk``) in two compiled passes over the links.
+    """One chunk of the simulator's period (``Simulator._chunk``) in compiled passes over the links, tile by tile.
 
     Pass 1: the power each receiver gets on each resource from the active transmitters,
     ``total[rx * n_res + resource[tx]] += rx_mw`` in link order (``np.bincount``'s additions, so equal
@@ -745,6 +746,17 @@ def period_chunk(
     numpy's on the CPUs tested) are taken only where a comparison needs them (:func:`_db_below`,
     :func:`_success_of_ratio`): equal to the numpy path (tested), at a fraction of the cost when most
     links are far below the PER table.
+
+    Tiles: every sum of a key (receiver, resource) comes from transmitters on that resource, hence from
+    one subframe, and the flat model's sums and the 3gpp leakage read only the same receiver's subframe.
+    So the links are gathered by their transmitter's tile of ``tile_subframes`` subframes (a stable
+    counting sort: increasing link order within a tile), the uniforms drawn in link order as they are
+    gathered, and passes 1 and 2 and the S-RSSI / SCI commit run tile by tile on an ``N x tile``
+    scratch (the first entries of ``total``, cache-sized at corridor scale instead of ``N x n_res``):
+    each key's additions happen in the same order as in one pass over the chunk, so the same bits.
+    A last pass in link order writes the outputs and sums the PRR accumulators (float sums in link
+    order). Memory beyond the outputs: 9 B per link (the tile-ordered ``P`` and cause; the other
+    tile-ordered inputs live in the outputs' arrays until that pass) and ``8 N tile n_sub`` bytes.
 
     Args:
         rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
@@ -763,7 +775,8 @@ def period_chunk(
         subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
             active, increasing (from :func:`active_links`: a chunk of a few transmitters visits only their
             links, possibly none); without, every link is visited and checked against ``active``.
-        total: [N * n_res] zeros, a scratch for the power sums: left zero again on return.
+        total: [N * n_res] zeros, a scratch for the power sums (the first ``N * tile_subframes * n_sub``
+            entries used): left zero again on return.
         sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
             draw per active link, as ``Simulator._sci_draws``), the PSCCH BLER curve (points in linear
             SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
@@ -779,6 +792,8 @@ def period_chunk(
             (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
             ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
             ``Simulator._chunk``), adds to the interference and to the S-RSSI.
+        tile_subframes: subframes per tile (:func:`chunk_tile_subframes`), >= 1; any value gives the same
+            results.
 
     Returns:
         ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n, bin_decoded,
