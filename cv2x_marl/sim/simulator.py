@@ -875,6 +875,7 @@ class Simulator:
             float(db_to_linear(cfg.link.inband_emission_db)) if cfg.link.inband_emission_db is not None else 0.0,
             self._chunk_total_slot,
             self._leakage if self._leakage is not None else np.empty((0, 0)),
+            kernels.chunk_tile_subframes(self.n, self.n_sub, self.rri),
         )
         self.last_links = (tx, rx, p, cause)
         if acc is not None:

@@ -330,3 +330,107 @@ def test_sparse_shadowing_step_equals_its_numpy_reference(correlation: str) -> N
         assert step == 0 or np.any(np.isin(keys, prev_keys))  # some pairs were read before
         prev_keys = keys
     assert np.std(fast) == pytest.approx(1.0, abs=0.05)
+
+
+def test_chunk_tile_subframes() -> None:
+    """Subframes per tile of kernels.period_chunk: as many as fit the scratch budget, at least 1, at most RRI."""
+    assert kernels.chunk_tile_subframes(10_000, 5, 100) == 1
+    assert kernels.chunk_tile_subframes(21, 5, 100, tile_bytes=8 * 21 * 5 * 7 + 5) == 7
+    assert kernels.chunk_tile_subframes(21, 5, 100, tile_bytes=8 * 21 * 5 * 1000) == 100
+    assert kernels.chunk_tile_subframes(0, 5, 20) == 20
+    assert kernels.chunk_tile_subframes(21, 5, 100) == kernels.CHUNK_TILE_BYTES // (8 * 21 * 5)
+
+
+def _chunk_args(rng: np.random.Generator, n: int, n_sub: int, rri: int, variant: str) -> list[Any]:
+    """Random inputs of kernels.period_chunk: ``n`` vehicles, all ordered pairs as links (pairs i < j, then
+    doubled, as the simulator's), half the vehicles active, in-band ``variant`` (none, flat, 3gpp + SCI)."""
+    i, j = np.triu_indices(n, 1)
+    rx, tx = np.concatenate([i, j]).astype(np.int64), np.concatenate([j, i]).astype(np.int64)
+    dist = np.concatenate([np.abs(i - j) * 37.0] * 2)
+    rx_mw = 10.0 ** (rng.uniform(-11.5, -8.0, rx.shape[0]))
+    resource = rng.integers(0, n_sub * rri, n)
+    slot = resource // n_sub
+    active = rng.random(n) < 0.5
+    n_res = n_sub * rri
+    curve = load_per_curve(PER_CURVES[0])
+    per_db, per = curve.sinr_db, curve.per
+    sci_lin, sci_bler = np.empty(0), np.empty(0)
+    leakage, flat = np.empty((0, 0)), 0.0
+    if variant == "3gpp":
+        sci_lin, sci_bler = 10.0 ** (np.linspace(-5.0, 10.0, 16) / 10.0), np.linspace(1.0, 0.01, 16) ** 2
+        leakage = rng.random((n_sub, n_sub)) * 1e-3
+    if variant == "flat":
+        flat = 1e-3
+    return [
+        rx, tx, dist, rx_mw, active, resource, slot, n_res, 10.0**-10.2, np.random.default_rng(1),
+        kernels.MODEL_PER_TABLE, per_db, per, 3.0, -95.0 if variant == "3gpp" else -np.inf,
+        rng.random(n) < 0.2, rng.random(n * n_res) * (rng.random(n * n_res) < 0.3), np.zeros(n * n_res),
+        100.0, 20, 5, False, np.empty(0, dtype=np.int64), np.zeros(n * n_res), np.random.default_rng(2),
+        sci_lin, sci_bler, 1.5, variant == "3gpp", n_sub, flat, np.zeros(n * rri), leakage,
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("variant", ["none", "flat", "3gpp"])
+@pytest.mark.parametrize("subset", [False, True])
+def test_period_chunk_is_the_same_for_any_tile_size(variant: str, subset: bool) -> None:
+    """kernels.period_chunk processes the chunk tile by tile (a few subframes at a time, the links of a tile
+    in link order): any tile size gives the same bits (outputs, PRR sums, S-RSSI, SCI map, the streams'
+    states, the scratches left zero), with every link visited or a subset (a few senders), tiles of one
+    subframe, of several with a shorter last one, or the whole period."""
+    n, n_sub, rri = 40, 3, 20
+    ref = None
+    for tile in (1, 3, 7, rri):
+        args = _chunk_args(np.random.default_rng(5), n, n_sub, rri, variant)
+        if subset:
+            senders = np.flatnonzero(args[4] & (args[6] < 9))
+            args[4] = np.isin(np.arange(n), senders)
+            start, index = kernels.links_by_transmitter(args[1], n)
+            args[21], args[22] = True, kernels.active_links(start, index, senders)
+        out = kernels.period_chunk(*args, tile)
+        assert not np.any(args[23]) and not np.any(args[31])
+        got = (*out, args[16], args[17], args[9].random(), args[24].random())
+        assert out[0].shape[0] > 100 and np.any(args[17] > 0)
+        if ref is None:
+            ref = got
+            continue
+        for x, y in zip(ref, got, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("tile", [1, 3, 100])
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [
+        ("highway-3gpp", []),  # per_ue (chunks of a few senders), standard signalling, SCI sinr + gate, 3gpp leakage
+        ("highway", ["link.inband_emission_db=-30"]),  # flat in-band emission
+        ("highway", ["sps.sci_decoding=sinr", "sps.sci_gates_pssch=true", "radio.sensitivity_dbm=-95"]),
+    ],
+)
+def test_tiled_compiled_period_equals_the_numpy_period(
+    monkeypatch: pytest.MonkeyPatch, name: str, extra: list[str], tile: int, compiled_and_numpy: Callable[..., Any]
+) -> None:
+    """The compiled chunk with tiles of 1, 3 and 100 subframes (kernels.chunk_tile_subframes forced) against
+    the numpy chunk (tests/sim/conftest.py: P to 1e-12, everything else exact)."""
+    monkeypatch.setattr(kernels, "chunk_tile_subframes", lambda n, n_sub, rri: min(rri, tile))
+    cfg = apply_overrides(preset(name), ["road.length_m=2500", "metrics.record_links=false", *extra])
+    compiled_and_numpy(cfg, 2, 250, 440)
+
+
+def test_tiled_compiled_period_equals_the_numpy_period_with_an_open_population(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compiled_and_numpy: Callable[..., Any]
+) -> None:
+    """An open population (absent slots: no resource, no links) with tiles of 3 subframes."""
+    monkeypatch.setattr(kernels, "chunk_tile_subframes", lambda n, n_sub, rri: 3)
+    trace = _fcd_trace(tmp_path / "fcd.xml", 150, 8.0)
+    over = [
+        "vehicles.mobility=trace",
+        f"vehicles.trace_file={trace}",
+        "vehicles.population=open",
+        "vehicles.sumo_begin_s=0",
+        "vehicles.capacity=150",
+        "metrics.record_links=false",
+        "link.inband_emission_model=3gpp",
+        "sps.n_subchannels=5",
+    ]
+    a, _, _, _ = compiled_and_numpy(apply_overrides(preset("paper"), over), 3, 137, 1030)
+    assert a.n_departures > 0 and a.n_entries > 0
