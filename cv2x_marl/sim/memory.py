@@ -67,6 +67,7 @@ _PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the perio
 # _chunk_compiled (no links table, no Rayleigh; kernels.period_chunk): no array over the links but its outputs
 # (last_links); the scratch for the power per receiver and resource [N * R] (float64), kept between chunks
 _COMPILED_PERIOD_PER_CELL = 8
+_COMPILED_PERIOD_PER_LINK = 9  # kernels.period_chunk while it runs: each link's uniform, then P (8 B), cause (1 B)
 _CHUNK_SUBSET_PER_LINK = 12  # kernels.links_by_transmitter's index (8 B) and a chunk's links (at most half)
 _SCI_DECODING_PER_LINK = 33  # sps.sci_decoding=sinr: uniforms, SINR + offset, linear SINR, P (8 B), decoded (1 B)
 _LAST_LINKS_PER_LINK = 25  # Simulator.last_links: tx, rx, p (8 B) and cause (1 B) of the last chunk
@@ -218,7 +219,11 @@ def _estimate(
     candidates = sps.selection_window_subframes * sps.n_subchannels
     select = reselecting * candidates * (_SELECT_PER_CANDIDATE + 9 * periods) + 4 * n * n_res
     geometry = _GEOMETRY_PER_PAIR * p
-    period = _COMPILED_PERIOD_PER_CELL * n_arr * n_res if compiled else _PERIOD_PER_LINK * links
+    period = (
+        _COMPILED_PERIOD_PER_CELL * n_arr * n_res + _COMPILED_PERIOD_PER_LINK * links
+        if compiled
+        else _PERIOD_PER_LINK * links
+    )
     if sps.sci_decoding == "sinr" and not compiled:  # numpy: SCI draws, PSCCH SINR, probability (8 B), decoded (1 B)
         period += _SCI_DECODING_PER_LINK * links
     if sps.reselection_timing == "per_ue" and compiled:  # chunks of a few senders: links by sender, the chunk's
