@@ -209,6 +209,16 @@ def test_links_grouped_by_transmitter_and_a_chunks_links_in_order() -> None:
     np.testing.assert_array_equal(kernels.active_links(start, index, senders), np.flatnonzero(np.isin(tx, senders)))
 
 
+@pytest.mark.parametrize("size", [0, 1, 255, 256, 4097, 100_000])
+@pytest.mark.parametrize("bound", [1, 4096, 4097, 1 << 24, (1 << 24) + 1, 1 << 40])
+def test_radix_sort_equals_numpy_sort(size: int, bound: int) -> None:
+    """One, two and several 12-bit passes (an odd count ends in the scratch), duplicates, short arrays."""
+    a = np.random.default_rng(size + bound).integers(0, bound, size)
+    want = np.sort(a)
+    kernels.radix_sort(a, bound)
+    np.testing.assert_array_equal(a, want)
+
+
 def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks() -> None:
     """Runs cut every 7 subframes: each chunk has a few transmitters, so the compiled chunk visits only
     their links (Simulator._chunk_links); the same results as the numpy chunks."""
