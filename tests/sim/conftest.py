@@ -64,3 +64,25 @@ def compiled_and_numpy() -> Callable[..., tuple[Any, Any, Any, Any]]:
         return a, ma, b, mb
 
     return run
+
+
+@pytest.fixture()
+def write_fcd() -> Callable[..., Any]:
+    """``write(path, seconds, vehicles_at)``: a SUMO FCD trace (``<fcd-export>``) of 0.1 s steps from 0 to
+    ``seconds``, ``vehicles_at(t)`` giving the ``(id, x)`` of the vehicles present at time ``t`` (on the
+    paper grid's road ``y = 56.25`` m); returns ``path``."""
+    from pathlib import Path
+
+    def write(path: Path, seconds: float, vehicles_at: Callable[[float], list[tuple[str, float]]]) -> Path:
+        lines = ["<fcd-export>"]
+        for k in range(round(seconds / 0.1) + 1):
+            t = k * 0.1
+            lines.append(f'<timestep time="{t:.2f}">')
+            for v, x in vehicles_at(t):
+                lines.append(f'<vehicle id="{v}" x="{x:.3f}" y="56.25" angle="90" speed="1"/>')
+            lines.append("</timestep>")
+        lines.append("</fcd-export>")
+        path.write_text("\n".join(lines))
+        return path
+
+    return write

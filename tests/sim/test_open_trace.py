@@ -4,6 +4,7 @@ two vehicles that shared the slot are two nodes), checked against the links tabl
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -15,25 +16,19 @@ from cv2x_marl.sim.metrics import CAUSE_CODE
 SWAP_S = 0.5  # b leaves, d appears, at this trace time
 
 
-def _trace(path: Path, seconds: float = 3.0) -> Path:
-    lines = ["<fcd-export>"]
-    for k in range(round(seconds / 0.1) + 1):
-        t = k * 0.1
-        lines.append(f'<timestep time="{t:.2f}">')
-        for i, v in enumerate(["a", "c", "b" if t < SWAP_S - 1e-9 else "d"]):
-            lines.append(f'<vehicle id="{v}" x="{50 + 40 * i + t:.3f}" y="56.25" angle="90" speed="1"/>')
-        lines.append("</timestep>")
-    lines.append("</fcd-export>")
-    path.write_text("\n".join(lines))
-    return path
+def _vehicles_at(t: float) -> list[tuple[str, float]]:
+    """a, b, c 40 m apart, moving at 1 m/s; b leaves at SWAP_S and d takes its place."""
+    return [(v, 50 + 40 * i + t) for i, v in enumerate(["a", "c", "b" if t < SWAP_S - 1e-9 else "d"])]
 
 
-def test_slot_handover_is_a_departure_and_node_prr_is_per_vehicle(tmp_path: Path) -> None:
+def test_slot_handover_is_a_departure_and_node_prr_is_per_vehicle(
+    tmp_path: Path, write_fcd: Callable[..., Path]
+) -> None:
     cfg = apply_overrides(
         preset("paper"),
         [
             "vehicles.mobility=trace",
-            f"vehicles.trace_file={_trace(tmp_path / 'fcd.xml')}",
+            f"vehicles.trace_file={write_fcd(tmp_path / 'fcd.xml', 3.0, _vehicles_at)}",
             "vehicles.population=open",
             "vehicles.sumo_begin_s=0",
             "vehicles.capacity=4",

@@ -4,6 +4,7 @@ runs are identical to runs that sweep every period."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -94,28 +95,19 @@ def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
     np.testing.assert_array_equal(j, rj)
 
 
-def _trace(path: Path, seconds: float = 4.0) -> Path:
+def _vehicles_at(t: float) -> list[tuple[str, float]]:
     """Four vehicles driving apart and together (pairs leave and enter a 60 m range); b leaves at 1 s and
     d takes its slot."""
-    lines = ["<fcd-export>"]
-    for k in range(round(seconds / 0.1) + 1):
-        t = k * 0.1
-        lines.append(f'<timestep time="{t:.2f}">')
-        for i, v in enumerate(["a", "c", "b" if t < 1.0 - 1e-9 else "d", "e"]):
-            x = 50 + 30 * i + (15, -10, 5, -15)[i] * t
-            lines.append(f'<vehicle id="{v}" x="{x:.3f}" y="56.25" angle="90" speed="1"/>')
-        lines.append("</timestep>")
-    lines.append("</fcd-export>")
-    path.write_text("\n".join(lines))
-    return path
+    ids = ["a", "c", "b" if t < 1.0 - 1e-9 else "d", "e"]
+    return [(v, 50 + 30 * i + (15, -10, 5, -15)[i] * t) for i, v in enumerate(ids)]
 
 
-def test_open_population_pairs_equal_a_sweep(tmp_path: Path) -> None:
+def test_open_population_pairs_equal_a_sweep(tmp_path: Path, write_fcd: Callable[..., Path]) -> None:
     cfg = apply_overrides(
         preset("paper"),
         [
             "vehicles.mobility=trace",
-            f"vehicles.trace_file={_trace(tmp_path / 'fcd.xml')}",
+            f"vehicles.trace_file={write_fcd(tmp_path / 'fcd.xml', 4.0, _vehicles_at)}",
             "vehicles.population=open",
             "vehicles.sumo_begin_s=0",
             "vehicles.capacity=5",

@@ -266,17 +266,30 @@ def _fcd_trace(path: Path, n: int, seconds: float) -> Path:
 
 
 @pytest.mark.parametrize(
-    "extra",
+    ("extra", "tile_subframes", "n_subframes"),
     [
-        ["link.inband_emission_model=3gpp", "sps.n_subchannels=5", "sps.reselection_timing=per_ue"],
-        ["link.inband_emission_db=-15", "sps.n_subchannels=3", "sps.sci_decoding=sinr", "sps.sci_gates_pssch=true"],
+        (["link.inband_emission_model=3gpp", "sps.n_subchannels=5", "sps.reselection_timing=per_ue"], None, 3030),
+        (
+            ["link.inband_emission_db=-15", "sps.n_subchannels=3", "sps.sci_decoding=sinr", "sps.sci_gates_pssch=true"],
+            None,
+            3030,
+        ),
+        (["link.inband_emission_model=3gpp", "sps.n_subchannels=5"], 3, 1030),  # tiles of 3 subframes
     ],
 )
 def test_compiled_period_equals_the_numpy_period_with_an_open_population(
-    tmp_path: Path, extra: list[str], compiled_and_numpy: Callable[..., Any]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    extra: list[str],
+    tile_subframes: int | None,
+    n_subframes: int,
+    compiled_and_numpy: Callable[..., Any],
 ) -> None:
     """Vehicles entering and leaving (a trace): absent slots hold no resource and no links; the compiled
-    chunk agrees with the numpy chunk, including the chunks of a period with few or no senders."""
+    chunk agrees with the numpy chunk, including the chunks of a period with few or no senders (and with
+    the kernel's tiles forced to 3 subframes)."""
+    if tile_subframes is not None:
+        monkeypatch.setattr(kernels, "chunk_tile_subframes", lambda n, n_sub, rri: tile_subframes)
     trace = _fcd_trace(tmp_path / "fcd.xml", 150, 8.0)
     base = [
         "vehicles.mobility=trace",
@@ -286,7 +299,7 @@ def test_compiled_period_equals_the_numpy_period_with_an_open_population(
         "vehicles.capacity=150",
         "metrics.record_links=false",
     ]
-    a, _, _, _ = compiled_and_numpy(apply_overrides(preset("paper"), [*base, *extra]), 3, 137, 3030)
+    a, _, _, _ = compiled_and_numpy(apply_overrides(preset("paper"), [*base, *extra]), 3, 137, n_subframes)
     assert a.n_departures > 0 and a.n_entries > 0
 
 
@@ -424,23 +437,3 @@ def test_tiled_compiled_period_equals_the_numpy_period(
     monkeypatch.setattr(kernels, "chunk_tile_subframes", lambda n, n_sub, rri: min(rri, tile))
     cfg = apply_overrides(preset(name), ["road.length_m=2500", "metrics.record_links=false", *extra])
     compiled_and_numpy(cfg, 2, 250, 440)
-
-
-def test_tiled_compiled_period_equals_the_numpy_period_with_an_open_population(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compiled_and_numpy: Callable[..., Any]
-) -> None:
-    """An open population (absent slots: no resource, no links) with tiles of 3 subframes."""
-    monkeypatch.setattr(kernels, "chunk_tile_subframes", lambda n, n_sub, rri: 3)
-    trace = _fcd_trace(tmp_path / "fcd.xml", 150, 8.0)
-    over = [
-        "vehicles.mobility=trace",
-        f"vehicles.trace_file={trace}",
-        "vehicles.population=open",
-        "vehicles.sumo_begin_s=0",
-        "vehicles.capacity=150",
-        "metrics.record_links=false",
-        "link.inband_emission_model=3gpp",
-        "sps.n_subchannels=5",
-    ]
-    a, _, _, _ = compiled_and_numpy(apply_overrides(preset("paper"), over), 3, 137, 1030)
-    assert a.n_departures > 0 and a.n_entries > 0
