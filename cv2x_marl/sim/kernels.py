@@ -860,6 +860,10 @@ def period_chunk(
     lin_hi = 10.0 ** (per_sinr_db[k_per - 1] / 10.0)
     thr_lin = 10.0 ** (threshold_db / 10.0)
     sens_lin = 10.0 ** (sensitivity_dbm / 10.0)  # 0.0 for -inf
+    sci_lo, sci_hi = 0.0, 0.0  # the PSCCH curve's ends as linear SINR before the offset
+    if sci_sinr:
+        sci_lo = sci_sinr_lin[0] / 10.0 ** (sci_offset_db / 10.0)
+        sci_hi = sci_sinr_lin[sci_sinr_lin.shape[0] - 1] / 10.0 ** (sci_offset_db / 10.0)
     # a tile's scratches: the power sums per receiver and resource of the tile (the first N x width
     # entries of total), the flat model's per receiver and subframe (of total_slot), the SCI maxima
     sum_t = total[: n * width]
@@ -898,7 +902,7 @@ def period_chunk(
             sci_decoded = True
             u_sci = 0.0
             if sci_sinr:
-                p_sci = _sci_probability(ratio, sci_offset_db, sci_sinr_lin, sci_bler)
+                p_sci = _sci_probability(ratio, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi)
                 u_sci = tile_u_sci[j]
                 sci_decoded = u_sci < p_sci
                 if sci_gates_pssch:  # the PSSCH needs its SCI: both decode, P the product
@@ -909,7 +913,9 @@ def period_chunk(
                 p0 = _success_of_ratio(s / noise_mw, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
                 would0 = u < p0
                 if sci_gates_pssch:
-                    would0 = would0 and u_sci < _sci_probability(s / noise_mw, sci_offset_db, sci_sinr_lin, sci_bler)
+                    would0 = would0 and u_sci < _sci_probability(
+                        s / noise_mw, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi
+                    )
             hd = slot[r] == slot[t]
             below = sensitivity_dbm > -np.inf and _db_below(s, sens_lin, sensitivity_dbm)
             fail = hd or below
@@ -1011,9 +1017,19 @@ def period_chunk(
 
 
 @njit(cache=True)
-def _sci_probability(ratio: float, offset_db: float, sinr_lin: FloatArray, bler: FloatArray) -> float:
+def _sci_probability(
+    ratio: float, offset_db: float, sinr_lin: FloatArray, bler: FloatArray, ratio_lo: float, ratio_hi: float
+) -> float:
     """``1 - BLER(10 log10(ratio) + offset)`` of the PSCCH curve (points ``sinr_lin`` in linear units),
-    :meth:`cv2x_marl.sim.link.PscchCurve.decoding_probability`'s arithmetic (0 for NaN)."""
+    :meth:`cv2x_marl.sim.link.PscchCurve.decoding_probability`'s arithmetic (0 for NaN). Outside the
+    curve, the constant that arithmetic gives (0 below: BLER 1; ``1 - bler[-1]`` above) without the
+    logarithm and the power: ``ratio_lo``, ``ratio_hi`` are the curve's ends as linear SINR before the
+    offset (``sinr_lin[0] / 10^(offset / 10)``, ``sinr_lin[-1] / 10^(offset / 10)``), and within
+    :data:`_LIN_MARGIN` of them the exact arithmetic decides."""
+    if ratio < ratio_lo * (1.0 - _LIN_MARGIN):
+        return 0.0
+    if ratio > ratio_hi * (1.0 + _LIN_MARGIN):
+        return 1.0 - bler[-1]
     x = 10.0 * math.log10(ratio) + offset_db
     if math.isnan(x):
         return 0.0

@@ -14,7 +14,7 @@ import pytest
 
 from cv2x_marl.config import apply_overrides, preset
 from cv2x_marl.sim import Simulator, kernels
-from cv2x_marl.sim.link import PER_CURVES, load_per_curve
+from cv2x_marl.sim.link import PER_CURVES, load_per_curve, load_pscch_curve
 
 
 def _db(x: np.ndarray) -> np.ndarray:
@@ -63,6 +63,25 @@ def test_success_of_ratio_equals_the_table_on_the_db_value(model: int) -> None:
             want = kernels._per_success(d, sinr_db, per, log_domain)
         assert got == want, (v, d, got, want)
     assert kernels._success_of_ratio(math.nan, kernels.MODEL_PER_TABLE, sinr_db, per, lo, hi, thr_db, thr) == 0.0
+
+
+@pytest.mark.parametrize("offset_db", [0.0, -6.0, 3.0])
+def test_sci_probability_equals_the_pscch_curve(offset_db: float) -> None:
+    """The kernel's PSCCH decoding probability (shortcut outside the curve) equals PscchCurve's at SINRs
+    across and beyond the curve, a few ulps either side of its ends, 0 and NaN."""
+    curve = load_pscch_curve()
+    lin = np.power(10.0, curve.sinr_db / 10.0)
+    off = 10.0 ** (offset_db / 10.0)
+    lo, hi = lin[0] / off, lin[-1] / off
+    ends = [np.nextafter(e, d, dtype=np.float64) for e in (lo, hi) for d in (0.0, np.inf)] + [lo, hi]
+    ends += [e * f for e in (lo, hi) for f in (1 - 1e-9, 1 + 1e-9, 1 - 2e-9, 1 + 2e-9)]
+    ratios = np.concatenate([np.power(10.0, np.linspace(-4, 3, 2001)), np.array(ends), [0.0, np.inf]])
+    with np.errstate(divide="ignore"):  # log10(0) = -inf: probability 0
+        want = curve.decoding_probability(10.0 * np.log10(ratios) + offset_db)
+    got = [kernels._sci_probability(float(r), offset_db, lin, curve.bler, lo, hi) for r in ratios]
+    np.testing.assert_array_equal(got, want)
+    assert kernels._sci_probability(math.nan, offset_db, lin, curve.bler, lo, hi) == 0.0
+    assert want.min() == 0.0 and want.max() == 1.0 - curve.bler[-1]  # both shortcuts taken
 
 
 @pytest.mark.parametrize("interpolation", ["linear", "log"])
