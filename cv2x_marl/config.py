@@ -787,7 +787,11 @@ def config_markdown() -> str:
         "the standard's Mode 4 procedures (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1, TS 36.101 6.5.2.3,",
         'TR 36.885 A.1.4; docs/model.md, "Fidelity switches"). The presets override them:',
     ]
-    for name, overrides in PRESETS.items():
+    for k, (name, overrides) in enumerate(PRESETS.items()):
+        same = next((other for other, o in list(PRESETS.items())[:k] if o == overrides), None)
+        if same is not None:  # an alias kept for configuration files and runs that name it
+            lines += ["", f"`{name}`: the same as `{same}`."]
+            continue
         lines += ["", f"`{name}`:", ""]
         for section, values in overrides.items():
             lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))

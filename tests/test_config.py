@@ -105,6 +105,16 @@ def test_presets_resolve_as_before_the_defaults_flipped(name: str) -> None:
     assert changed == {}
 
 
+def test_sumo_highway_follows_highway_to_the_standard_procedures() -> None:
+    """``sumo-highway`` is the highway with SUMO traffic: at 685db59 it took the simplified procedures of the
+    then ``highway``, now the standard's; it changed in exactly the eight switches, each to ``highway``'s value."""
+    recorded = json.loads((Path(__file__).parent / "data" / "presets_685db59.json").read_text())["presets"]
+    now, hw = to_dict(preset("sumo-highway")), to_dict(preset("highway"))
+    changed = {(sec, k) for sec, keys in recorded["sumo-highway"].items() for k, v in keys.items() if now[sec][k] != v}
+    assert changed == {(sec, k) for sec, keys in LEGACY_MODE4.items() for k in keys}
+    assert all(now[sec][k] == hw[sec][k] for sec, k in changed)
+
+
 @pytest.mark.parametrize(
     ("override", "culprit", "allowed"),
     [

@@ -63,7 +63,8 @@ class MobilityEnv(ParallelEnv):
     """Controlled mobility in a C-V2X Mode 4 network (PettingZoo ParallelEnv).
 
     Args:
-        preset: scenario preset (``paper``: the paper's 21-vehicle grid; ``highway``).
+        preset: scenario preset (``paper``: the paper's 21-vehicle grid; ``highway``: the TR 36.885 highway
+            with the standard's Mode 4 procedures; ``highway-legacy``: with the paper's simplified ones).
         overrides: ``section.key=value`` strings applied to the preset.
         config: a full :class:`ScenarioConfig` (takes precedence over preset/overrides).
         mode: ``snapshot`` (positions and SPS resources of a stage-1 snapshot; only the agents'

@@ -15,7 +15,7 @@
 * Shadowing (TR 36.885 A.1.4): log-normal, 3 dB LOS / 4 dB NLOS, symmetric per vehicle pair and
   correlated as ``S' = exp(-D/d_c) S + sqrt(1 - exp(-2D/d_c)) N(0, 1)``; ``D``
   (``channel.shadowing_correlation``): ``travelled``, the sum of the distances both vehicles
-  travelled (the model so far, default); ``pair_distance``, the change of the link's distance
+  travelled (the paper presets'); ``pair_distance`` (the default), the change of the link's distance
   since the pair was last read, ``D = |d(t) - d(t')|`` (TR 36.885 A.1.4: D is the change in
   distance of the link from the previous to the current time instance), so two vehicles driving
   together keep their shadowing.

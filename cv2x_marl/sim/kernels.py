@@ -666,8 +666,8 @@ def _interp_clamped(x: float, xp: FloatArray, fp: FloatArray, left: float, right
 
 
 #: bytes of one tile's power-sum scratch in :func:`period_chunk` (N receivers x the tile's resources,
-#: float64; the tile's SCI maxima take as much again): one subframe per tile from about 330 vehicles with
-#: 5 subchannels (measured fastest at 2,000 and 10,000 vehicles, against 2-6 subframes); a small
+#: float64; the tile's SCI maxima take as much again): one subframe per tile from about 820 vehicles with
+#: 5 subchannels (2**16 // (8 x 5 N)) (measured fastest at 2,000 and 10,000 vehicles, against 2-6 subframes); a small
 #: scenario runs a few tiles of many subframes
 CHUNK_TILE_BYTES = 2**16
 

@@ -5,8 +5,8 @@ Three models, all vectorised over links:
 * ``per_table``: ``P = 1 - PER(SINR)`` with PER interpolated from a link-level curve shipped as
   package data (``cv2x_marl/sim/data/*.csv``, source in the file header); PER = 1 below the first
   table point and the last PER above the last one. Between points (``link.per_interpolation``):
-  ``linear``, PER linear in SINR (dB) (the default, the model so far, as ``interp1(..., 'linear')``
-  in the reference code the points come from); ``log``, ``log PER`` linear in SINR (dB), i.e. PER
+  ``linear``, PER linear in SINR (dB) (the paper presets', as ``interp1(..., 'linear')``
+  in the reference code the points come from); ``log`` (the default), ``log PER`` linear in SINR (dB), i.e. PER
   geometric between points, which follows a waterfall curve (PER falls about exponentially with
   SINR in dB) instead of over-estimating it between points: at 7 dB on the r = 0.5 curve (6 dB:
   0.09, 8 dB: 0.02) linear gives 0.055 and log ``sqrt(0.09 * 0.02) = 0.0424``.

@@ -331,7 +331,10 @@ class Simulator:
         #: cut-off, the same pairs in the same order (kernels.filter_pairs_within_range; tested). 0: a sweep
         #: every period. 5 % of the cut-off: highway speeds rebuild it every 6-20 periods
         self.pair_skin_m = 0.05 * config.link.max_range_m if config.link.max_range_m is not None else 0.0
-        self._pair_list: tuple[FloatArray, NDArray[np.int64] | None, NDArray[np.int32], NDArray[np.int32]] | None = None
+        #: (build positions, slots of an open population, skin, i, j) of the list in use
+        self._pair_list: (
+            tuple[FloatArray, NDArray[np.int64] | None, float, NDArray[np.int32], NDArray[np.int32]] | None
+        ) = None
         if config.link.max_range_m is None:  # the compiled sweep gives the pairs in range otherwise
             iu, ju = np.triu_indices(self.n, 1)
             self._all_pairs = (iu.astype(np.int64), ju.astype(np.int64))
@@ -583,11 +586,11 @@ class Simulator:
             return kernels.pairs_within_range(pos, box, float(rng_m))
         cached = self._pair_list
         if cached is not None:
-            pos0, idx0, ci, cj = cached
+            pos0, idx0, skin0, ci, cj = cached
             same_slots = (idx is None and idx0 is None) or (
                 idx is not None and idx0 is not None and np.array_equal(idx, idx0)
             )
-            if same_slots:
+            if same_slots and skin0 == skin:  # a changed pair_skin_m rebuilds it
                 moved = self.displacement_m(pos0, pos)
                 # a pair outside r + skin at the build is still outside r while 2 max |moved| < skin (the
                 # minimum-image distance is a metric); the margin covers the rounding of these sums
@@ -596,7 +599,7 @@ class Simulator:
         wide_i, wide_j = kernels.pairs_within_range(pos, box, float(rng_m) + skin)
         ci, cj = wide_i.astype(np.int32), wide_j.astype(np.int32)  # slots < 2^31: half the memory kept
         del wide_i, wide_j
-        self._pair_list = (pos.copy(), None if idx is None else idx.copy(), ci, cj)
+        self._pair_list = (pos.copy(), None if idx is None else idx.copy(), skin, ci, cj)
         return kernels.filter_pairs_within_range(pos, box, float(rng_m), ci, cj)
 
     def _tx_eirp_dbm(self) -> float:

@@ -95,14 +95,34 @@ def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
     np.testing.assert_array_equal(j, rj)
 
 
+def test_a_changed_skin_rebuilds_the_list() -> None:
+    cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.max_range_m=200"])
+    sim = Simulator(cfg)
+    sim.pair_skin_m = 1.0
+    sim.reset(1, warmup_subframes=0)
+    pos = np.ascontiguousarray(sim._period_geometry().positions_m)
+    built = sim._pair_list
+    assert built is not None
+    sim.pair_skin_m = 10.0  # the 1 m list holds no pair between 201 and 210 m: it must not be reused
+    sim._pairs(pos)
+    assert sim._pair_list is not built and sim._pair_list is not None and sim._pair_list[2] == 10.0
+
+
 def _vehicles_at(t: float) -> list[tuple[str, float]]:
-    """Four vehicles driving apart and together (pairs leave and enter a 60 m range); b leaves at 1 s and
-    d takes its slot."""
+    """Vehicles driving apart and together (pairs leave and enter a 60 m range); b leaves at 1 s and d takes
+    its slot; f enters a new slot at 1.5 s; e leaves at 2.2 s and nobody takes its slot."""
     ids = ["a", "c", "b" if t < 1.0 - 1e-9 else "d", "e"]
-    return [(v, 50 + 30 * i + (15, -10, 5, -15)[i] * t) for i, v in enumerate(ids)]
+    out = [(v, 50 + 30 * i + (15, -10, 5, -15)[i] * t) for i, v in enumerate(ids)]
+    if t >= 2.2 - 1e-9:
+        out = out[:3]
+    if t >= 1.5 - 1e-9:
+        out.append(("f", 60 + 10 * t))
+    return out
 
 
-def test_open_population_pairs_equal_a_sweep(tmp_path: Path, write_fcd: Callable[..., Path]) -> None:
+def test_open_population_pairs_equal_a_sweep(
+    tmp_path: Path, write_fcd: Callable[..., Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
     cfg = apply_overrides(
         preset("paper"),
         [
@@ -116,9 +136,19 @@ def test_open_population_pairs_equal_a_sweep(tmp_path: Path, write_fcd: Callable
             "metrics.interferer_range_m=60",
         ],
     )
+    slot_sets: set[tuple[int, ...]] = set()
+    real_pairs_of = Simulator._pairs_of
+
+    def spy(sim: Simulator, pos: np.ndarray, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        slot_sets.add(tuple(range(sim.n)) if idx is None else tuple(idx.tolist()))
+        return real_pairs_of(sim, pos, idx)
+
+    monkeypatch.setattr(Simulator, "_pairs_of", spy)
     skin_pairs, a, builds = _run_pairs(cfg, 4.0, 30)
     sweep_pairs, _, _ = _run_pairs(cfg, 0.0, 30)
-    assert builds >= 2  # the list is rebuilt when the slots change, and when vehicles moved 2 m
+    # the present slots changed twice (f entered slot 4, e left slot 3), each change rebuilding the list
+    assert slot_sets == {(0, 1, 2, 3), (0, 1, 2, 3, 4), (0, 1, 2, 4)}
+    assert builds >= 3
     sizes = []
     for (tx_a, rx_a), (tx_b, rx_b) in zip(skin_pairs, sweep_pairs, strict=True):
         np.testing.assert_array_equal(tx_a, tx_b)
@@ -126,4 +156,4 @@ def test_open_population_pairs_equal_a_sweep(tmp_path: Path, write_fcd: Callable
         sizes.append(tx_a.size)
     steps = np.diff(sizes)
     assert np.any(steps > 0) and np.any(steps < 0)  # pairs came into range (a, e) and went out of it (c, d)
-    assert a.n_departures == 1
+    assert a.n_departures == 2 and a.n_entries == 2  # b and e left; d and f entered

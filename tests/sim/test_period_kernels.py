@@ -443,7 +443,7 @@ def test_period_chunk_is_the_same_for_any_tile_size(variant: str, subset: bool) 
 @pytest.mark.parametrize(
     ("name", "extra"),
     [
-        ("highway-3gpp", []),  # per_ue (chunks of a few senders), standard signalling, SCI sinr + gate, 3gpp leakage
+        ("highway", []),  # per_ue (chunks of a few senders), standard signalling, SCI sinr + gate, 3gpp leakage
         ("highway-legacy", ["link.inband_emission_db=-30"]),  # flat in-band emission
         ("highway-legacy", ["sps.sci_decoding=sinr", "sps.sci_gates_pssch=true", "radio.sensitivity_dbm=-95"]),
     ],
