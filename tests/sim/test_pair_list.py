@@ -74,14 +74,20 @@ def test_simulator_pairs_equal_a_sweep_every_period(offsets: bool) -> None:
     assert Simulator(cfg).pair_skin_m == pytest.approx(15.0)
 
 
-def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
+def _list_built(skin_m: float) -> tuple[Simulator, np.ndarray, object]:
+    """A 1 km highway ring with a 200 m cut-off and the given skin, reset: the simulator, its positions and the
+    pair list the reset built."""
     cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.max_range_m=200"])
     sim = Simulator(cfg)
-    sim.pair_skin_m = 10.0
+    sim.pair_skin_m = skin_m
     sim.reset(1, warmup_subframes=0)
     pos = np.ascontiguousarray(sim._period_geometry().positions_m)
-    built = sim._pair_list
-    assert built is not None
+    assert sim._pair_list is not None
+    return sim, pos, sim._pair_list
+
+
+def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
+    sim, pos, built = _list_built(10.0)
     offsets = np.zeros((sim.n, 2))
     offsets[4, 0] = 4.9  # 2 x 4.9 < 10: the list stands
     sim._pairs(pos + offsets)
@@ -89,20 +95,13 @@ def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
     offsets[4, 0] = 5.1  # 2 x 5.1 > 10: rebuilt
     i, j = sim._pairs(pos + offsets)
     assert sim._pair_list is not built
-    box = sim.road.periodic_box_m
-    ri, rj = kernels.pairs_within_range(pos + offsets, box, 200.0)
+    ri, rj = kernels.pairs_within_range(pos + offsets, sim.road.periodic_box_m, 200.0)
     np.testing.assert_array_equal(i, ri)
     np.testing.assert_array_equal(j, rj)
 
 
 def test_a_changed_skin_rebuilds_the_list() -> None:
-    cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.max_range_m=200"])
-    sim = Simulator(cfg)
-    sim.pair_skin_m = 1.0
-    sim.reset(1, warmup_subframes=0)
-    pos = np.ascontiguousarray(sim._period_geometry().positions_m)
-    built = sim._pair_list
-    assert built is not None
+    sim, pos, built = _list_built(1.0)
     sim.pair_skin_m = 10.0  # the 1 m list holds no pair between 201 and 210 m: it must not be reused
     sim._pairs(pos)
     assert sim._pair_list is not built and sim._pair_list is not None and sim._pair_list[2] == 10.0
