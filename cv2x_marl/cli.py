@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from cv2x_marl.config import (
+    PRESET_ALIASES,
     PRESETS,
     ConfigError,
     ScenarioConfig,
@@ -90,7 +91,12 @@ def _scenario(args: argparse.Namespace) -> ScenarioConfig:
 
 
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="paper", choices=sorted(PRESETS), help="base configuration (default: paper)")
+    p.add_argument(
+        "--preset",
+        default="paper",
+        choices=sorted([*PRESETS, *PRESET_ALIASES]),
+        help="base configuration (default: paper)",
+    )
     p.add_argument("--config", type=Path, help="YAML/JSON file of configuration sections applied over the preset")
     p.add_argument(
         "--set",
@@ -547,7 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--episodes", type=COUNT, default=144)
     p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--preset", default="paper", choices=sorted(PRESETS))
+    p.add_argument("--preset", default="paper", choices=sorted([*PRESETS, *PRESET_ALIASES]))
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
     p.add_argument("--max-cycles", type=COUNT, default=100, help="steps per episode")
     p.add_argument("--max-step", type=POSITIVE_FLOAT, default=5.0, help="offset of a full action (m)")

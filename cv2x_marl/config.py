@@ -30,6 +30,7 @@ from typing import Any
 
 __all__ = [
     "PRESETS",
+    "PRESET_ALIASES",
     "ChannelConfig",
     "ConfigError",
     "LinkConfig",
@@ -686,9 +687,6 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # The highway case with the simplified procedures of the paper's model (the `highway` preset before
     # issue 13 flipped the defaults).
     "highway-legacy": _merged(_HIGHWAY, LEGACY_MODE4),
-    # The name `highway` had while the defaults were the simplified model: the same scenario as `highway`,
-    # kept so configuration files and runs that name it still load.
-    "highway-3gpp": _merged(_HIGHWAY),
     # The paper's scenario with vehicles driven by SUMO: the 4 x 4 two-way grid of the 450 m region,
     # generated with netgenerate; 21 vehicles on random walks (docs/mobility.md). Needs the `sumo` extra.
     "sumo-grid": _merged(LEGACY_MODE4, {"vehicles": {"mobility": "sumo"}}),
@@ -703,6 +701,9 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # docs/mobility.md). The env needs a fixed population: use sumo-grid there.
     "sumo-grid-trips": _merged(LEGACY_MODE4, {"vehicles": {"mobility": "sumo", "population": "open"}}),
 }
+#: Former preset names, kept so configuration files and runs that name them still load: ``highway-3gpp``
+#: was the standards-exact highway while the defaults were the simplified procedures.
+PRESET_ALIASES: dict[str, str] = {"highway-3gpp": "highway"}
 
 
 def to_dict(cfg: ScenarioConfig) -> dict[str, dict[str, Any]]:
@@ -735,10 +736,11 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
 
 
 def preset(name: str) -> ScenarioConfig:
-    """A named preset: ``paper``, ``highway``, ``highway-legacy``, ``highway-3gpp`` (``highway``'s former
-    name), ``sumo-grid``, ``sumo-highway`` or ``sumo-grid-trips``."""
+    """A named preset: ``paper``, ``highway``, ``highway-legacy``, ``sumo-grid``, ``sumo-highway`` or
+    ``sumo-grid-trips``, or a former name (:data:`PRESET_ALIASES`: ``highway-3gpp`` is ``highway``)."""
+    name = PRESET_ALIASES.get(name, name)
     if name not in PRESETS:
-        raise ConfigError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
+        raise ConfigError(f"unknown preset {name!r}; presets: {', '.join([*PRESETS, *PRESET_ALIASES])}")
     return from_dict(PRESETS[name])
 
 
@@ -787,14 +789,12 @@ def config_markdown() -> str:
         "the standard's Mode 4 procedures (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1, TS 36.101 6.5.2.3,",
         'TR 36.885 A.1.4; docs/model.md, "Fidelity switches"). The presets override them:',
     ]
-    for k, (name, overrides) in enumerate(PRESETS.items()):
-        same = next((other for other, o in list(PRESETS.items())[:k] if o == overrides), None)
-        if same is not None:  # an alias kept for configuration files and runs that name it
-            lines += ["", f"`{name}`: the same as `{same}`."]
-            continue
+    for name, overrides in PRESETS.items():
         lines += ["", f"`{name}`:", ""]
         for section, values in overrides.items():
             lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))
+    for alias, name in PRESET_ALIASES.items():  # former names, kept for files and runs that name them
+        lines += ["", f"`{alias}`: the former name of `{name}`, the same preset."]
     hints_cache: dict[type, dict[str, Any]] = {}
     for name, cls in _SECTIONS.items():
         hints = hints_cache.setdefault(cls, typing.get_type_hints(cls))
