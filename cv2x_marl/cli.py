@@ -694,26 +694,55 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     runs.INVOCATION = ["cv2x-marl", *(sys.argv[1:] if argv is None else argv)]
+    runs.INPUTS = _inputs(args)
     previous = _terminate_as_interrupt()
     try:
         return int(args.func(args))
     except ConfigError as exc:
-        print(f"cv2x-marl: configuration error: {exc}", file=sys.stderr)
+        print(f"cv2x-marl: configuration error: {exc}{_notes(exc)}", file=sys.stderr)
         return 2
     except (ValueError, MissingExtraError) as exc:  # ConfigError, DatasetError, FitError, ModelError, TrainError, ...
-        print(f"cv2x-marl: error: {exc}", file=sys.stderr)
+        print(f"cv2x-marl: error: {exc}{_notes(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:  # a full disk, a folder that vanished: the run folder was rolled back
         where = f" ({exc.filename})" if exc.filename else ""
-        print(f"cv2x-marl: file system error{where}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"cv2x-marl: file system error{where}: {exc.strerror or exc}{_notes(exc)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt as exc:
-        detail = f": {exc}" if str(exc) else "; the output folder was left as it was before the run"
-        print(f"\ncv2x-marl: interrupted{detail}", file=sys.stderr)
+    except (KeyboardInterrupt, SystemError) as exc:
+        # Ctrl-C or SIGTERM; inside a numba kernel the interrupt surfaces as a SystemError caused by it
+        if not runs.is_interrupt(exc):
+            raise
+        detail = f": {exc}" if isinstance(exc, KeyboardInterrupt) and str(exc) else ""
+        print(f"\ncv2x-marl: interrupted{detail}{_notes(exc)}", file=sys.stderr)
         return 130
     finally:
         runs.INVOCATION = None
+        runs.INPUTS = []
         _restore_signal(previous)
+
+
+def _notes(exc: BaseException) -> str:
+    """What happened to the output folder (the notes :class:`cv2x_marl.runs.RunFolder` attached), as ``; ...``."""
+    from cv2x_marl import runs
+
+    return "".join(f"; {n}" for n in runs.notes(exc))
+
+
+def _inputs(args: argparse.Namespace) -> list[Path]:
+    """The files and folders a command reads (``--config``, ``--data``, ``--model``, ``--models``, the
+    file of ``--policy``): its ``--out`` may not be, contain or lie inside one of them."""
+    found: list[Path] = []
+    for name in ("config", "data", "model", "models"):
+        value = getattr(args, name, None)
+        if isinstance(value, Path):
+            found.append(value)
+    policy = getattr(args, "policy", None)
+    if isinstance(policy, str):
+        if policy.startswith("ppo:"):
+            found.append(Path(policy[4:]))
+        elif policy.endswith((".yaml", ".yml", ".json")):
+            found.append(Path(policy))
+    return found
 
 
 def _terminate_as_interrupt() -> Any:

@@ -155,15 +155,16 @@ def test_leftovers_of_a_killed_run_are_repaired(tmp_path: Path) -> None:
     out = tmp_path / "run"
     with RunFolder(out, "simulate"):
         (out / "a.txt").write_text("previous")
-    old = tmp_path / ".run.old-99999"
+    old = tmp_path / f"{runs._aside_prefix(out)}99999"
     os.replace(out, old)
+    assert runs.previous_run_aside(out) == old  # what readers name until the next run repairs it
     out.mkdir()
-    (out / "run.json").write_text(json.dumps({"status": "running"}))
+    (out / "run.json").write_text(json.dumps({"kind": runs.KIND, "status": "running"}))
     (out / "partial.txt").write_text("half")
     with pytest.raises(RunFolderError, match="not empty"), RunFolder(out, "simulate"):
         pass
     assert (out / "a.txt").read_text() == "previous" and not (out / "partial.txt").exists()
-    assert not old.exists()
+    assert not old.exists() and runs.previous_run_aside(out) is None
     verify(out)
 
 
