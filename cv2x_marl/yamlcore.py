@@ -199,13 +199,24 @@ CoreLoader.add_constructor("tag:yaml.org,2002:float", CoreLoader.construct_yaml_
 CoreLoader.add_constructor("tag:yaml.org,2002:bool", CoreLoader.construct_yaml_bool)
 
 
-def load(text: str) -> Any:
+def load(text: str, name: str | None = None) -> Any:
     """Parse a YAML document with the YAML 1.2 core schema (:class:`CoreLoader`).
 
+    Args:
+        text: the document.
+        name: where it came from (a file name), for the positions in error messages.
+
     Raises:
-        yaml.YAMLError: malformed YAML or a repeated mapping key.
+        yaml.YAMLError: malformed YAML, a repeated mapping key, or a limit of the document
+            (:data:`MAX_DEPTH`, :data:`MAX_NODES`, integer digits).
     """
-    return yaml.load(text, Loader=CoreLoader)
+    loader = CoreLoader(text)
+    if name is not None:
+        loader.name = name
+    try:
+        return loader.get_single_data()
+    finally:
+        loader.dispose()
 
 
 def parse_scalar(text: str) -> Any:
@@ -261,7 +272,7 @@ def load_path(path: str | Path, what: str = "configuration file") -> Any:
 
     path = Path(path)
     text = read_text_limited(path, MAX_FILE_BYTES, what)
-    return load_json(text) if path.suffix == ".json" else load(text)
+    return load_json(text) if path.suffix == ".json" else load(text, str(path))
 
 
 def load_mapping(path: str | Path, what: str, error: type[Exception] = ValueError) -> dict[str, Any]:

@@ -296,7 +296,7 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
     if missing:
         raise DatasetError(f"{spath} lacks columns {sorted(missing)}")
     if table.num_rows != manifest.get("rows"):
-        raise DatasetError(f"{spath} has {table.num_rows} rows, the manifest says {manifest.get('rows')}")
+        raise DatasetError(f"{spath} has {table.num_rows} rows, the manifest says {show_value(manifest.get('rows'))}")
     return _numeric_columns(table, spath), manifest
 
 

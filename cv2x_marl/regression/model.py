@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cv2x_marl.config import show_value
 from cv2x_marl.io import InputFileError, read_text_limited, strict, write_json
 
 FloatArray = NDArray[np.float64]
@@ -75,7 +76,7 @@ class TwoDistanceModel:
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
-            raise ModelError(f"unknown model kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+            raise ModelError(f"unknown model kind {show_value(self.kind)}; kinds: {', '.join(KINDS)}")
         self.alpha = np.asarray(self.alpha, dtype=np.float64)
         self.beta = np.asarray(self.beta, dtype=np.float64)
         self.gamma = np.asarray(self.gamma, dtype=np.float64)
@@ -186,7 +187,9 @@ class TwoDistanceModel:
             raise ModelError(f"{source}: expected a JSON object")
         version = data.get("schema_version")
         if version != SCHEMA_VERSION:
-            raise ModelError(f"{source}: schema_version {version!r} is not supported (expected {SCHEMA_VERSION})")
+            raise ModelError(
+                f"{source}: schema_version {show_value(version)} is not supported (expected {SCHEMA_VERSION})"
+            )
         try:
             rows = sorted(data["per_nsv"], key=lambda r: int(r["nsv"]))
             if [int(r["nsv"]) for r in rows] != list(range(len(rows))):
