@@ -18,6 +18,8 @@ from cv2x_marl.config import (
     config_markdown,
     load_config_file,
     preset,
+    show_text,
+    show_value,
     to_dict,
 )
 from cv2x_marl.extras import MissingExtraError
@@ -42,28 +44,34 @@ EVAL_ENV_IDS = (
 def _number_type(
     kind: type, low: float, low_open: bool, high: float | None = None, high_open: bool = True
 ) -> Callable[[str], Any]:
-    """An argparse ``type`` that accepts finite ``kind`` values in the range and names the rule otherwise."""
-    lo = f"{'>' if low_open else '>='} {low:g}"
+    """An argparse ``type`` that accepts finite ``kind`` values in the range and names the rule otherwise
+    (the text shown cut to 60 characters; integers of any length are compared exactly)."""
+
+    def fmt(x: float) -> str:
+        return str(int(x)) if kind is int else f"{x:g}"
+
+    lo = f"{'>' if low_open else '>='} {fmt(low)}"
     rule = f"{'an integer' if kind is int else 'a finite number'} {lo}"
     if high is not None:
-        rule += f" and {'<' if high_open else '<='} {high:g}"
+        rule += f" and {'<' if high_open else '<='} {fmt(high)}"
 
     def parse(text: str) -> float | int:
+        refusal = f"must be {rule}, got {show_value(text)}"
         try:
             value = kind(text)
         except ValueError:
             try:  # an integer written in scientific notation (--timesteps 1e5)
                 as_float = float(text)
             except ValueError:
-                raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}") from None
-            if kind is not int or not as_float.is_integer():
-                raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}") from None
+                raise argparse.ArgumentTypeError(refusal) from None
+            if kind is not int or not as_float.is_integer():  # inf and NaN are not integers
+                raise argparse.ArgumentTypeError(refusal) from None
             value = int(as_float)
-        ok = math.isfinite(value) and (value > low if low_open else value >= low)
+        ok = (kind is int or math.isfinite(value)) and (value > low if low_open else value >= low)
         if high is not None:
             ok = ok and (value < high if high_open else value <= high)
         if not ok:
-            raise argparse.ArgumentTypeError(f"must be {rule}, got {text!r}")
+            raise argparse.ArgumentTypeError(refusal)
         return value
 
     return parse
@@ -76,7 +84,9 @@ OVERWRITE_HELP = (
 POSITIVE_FLOAT = _number_type(float, 0.0, True)
 FRACTION = _number_type(float, 0.0, True, 1.0, True)
 COUNT = _number_type(int, 1, False)
-SEED = _number_type(int, 0, False)
+#: the largest seed: seeds are 32-bit (numpy's legacy seeding, which stable-baselines3 calls, takes < 2**32)
+MAX_SEED = 2**32 - 1
+SEED = _number_type(int, 0, False, MAX_SEED, False)
 
 
 def _print_json(data: object) -> None:
@@ -84,18 +94,21 @@ def _print_json(data: object) -> None:
 
 
 def _scenario(args: argparse.Namespace) -> ScenarioConfig:
-    cfg = preset(args.preset)
+    """``--preset`` (default paper), then the ``--config`` file (whose ``preset:`` line, if any, must
+    name the same preset as a given ``--preset``), then the ``--set`` overrides."""
+    cfg = preset(args.preset or "paper")
     if args.config:
-        cfg = load_config_file(args.config, cfg)
+        cfg = load_config_file(args.config, cfg, given_preset=args.preset)
     return apply_overrides(cfg, args.set or [])
 
 
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--preset",
-        default="paper",
+        default=None,
         choices=sorted([*PRESETS, *PRESET_ALIASES]),
-        help="base configuration (default: paper)",
+        help="base configuration (default: paper, or the --config file's preset: line; naming two "
+        "different presets is refused)",
     )
     p.add_argument("--config", type=Path, help="YAML/JSON file of configuration sections applied over the preset")
     p.add_argument(
@@ -214,11 +227,18 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_gbmu(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments.baselines import resolve_model
     from cv2x_marl.experiments.dataset import load_model
-    from cv2x_marl.experiments.gbmu_study import run_study
+    from cv2x_marl.experiments.gbmu_study import ALL_METHODS, run_study
 
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in ALL_METHODS]
+    if not methods or unknown:
+        got = f"unknown method(s) {', '.join(show_text(m) for m in unknown)}" if unknown else "no method"
+        raise ConfigError(
+            f"--methods {show_value(args.methods)} names {got}; give one or more of, separated by commas: "
+            + ", ".join(ALL_METHODS)
+        )
     cfg = _scenario(args)
     model = load_model(resolve_model(str(args.model)))
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     summary = run_study(
         args.case,
         cfg,

@@ -47,12 +47,55 @@ __all__ = [
     "from_dict",
     "load_config_file",
     "preset",
+    "show_text",
+    "show_value",
     "to_dict",
 ]
 
 
 class ConfigError(ValueError):
     """A configuration key is unknown, has the wrong type, or is out of range."""
+
+
+#: characters of a value an error message shows before it cuts the value short
+SHOWN_CHARS = 60
+
+
+def show_text(text: str) -> str:
+    """``text`` unquoted for an error message: its first :data:`SHOWN_CHARS` characters and its length
+    when it is longer (``abc... (100,000 characters)``)."""
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}... ({len(text):,} characters)"
+
+
+def show_value(value: Any) -> str:
+    """``value`` for an error message, never longer than about :data:`SHOWN_CHARS` characters.
+
+    A long string shows its first characters and its length (``'xxxx...' ... (100000 characters)``),
+    a huge integer its number of digits, a list or mapping its first items: a large or deeply shared
+    value (a YAML alias bomb) is never formatted in full.
+    """
+    import reprlib
+    import sys
+
+    if isinstance(value, str):
+        if len(value) <= SHOWN_CHARS:
+            return repr(value)
+        return f"{value[:SHOWN_CHARS]!r}... ({len(value):,} characters)"
+    if isinstance(value, bytes | bytearray):
+        return show_value(value.decode("utf-8", "replace"))
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 3 * SHOWN_CHARS:
+        limit = sys.get_int_max_str_digits()
+        if limit and value.bit_length() > 3.33 * limit:
+            return f"an integer of more than {limit:,} digits"
+        return f"an integer of {len(str(abs(value))):,} digits"
+    short = reprlib.Repr()
+    short.maxlevel, short.maxstring, short.maxother, short.maxlong = 3, SHOWN_CHARS, SHOWN_CHARS, SHOWN_CHARS
+    short.maxlist = short.maxtuple = short.maxdict = short.maxset = 6
+    try:
+        text = short.repr(value)
+    except ValueError:  # an integer inside it too long to convert to text
+        return f"a {type(value).__name__}"
+    return text if len(text) <= SHOWN_CHARS + 20 else f"{text[:SHOWN_CHARS]}... (cut short)"
 
 
 def _key(
@@ -118,35 +161,35 @@ class Section:
 def _coerce(key: str, value: Any, tp: type, meta: Mapping[str, Any]) -> Any:
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+            raise ConfigError(f"{key}: expected true or false, got {show_value(value)}")
         return value
     if tp is int:
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-            or float(value) != int(value)
-        ):
-            raise ConfigError(f"{key}: expected an integer in {_allowed(meta)}, got {value!r}")
-        value = int(value)
+        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer in {_allowed(meta)}, got {show_value(value)}")
+        # a Python int of any size compares exactly with the float bounds below (no OverflowError)
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{key}: expected a number in {_allowed(meta)}, got {value!r}")
-        value = float(value)
+            raise ConfigError(f"{key}: expected a number in {_allowed(meta)}, got {show_value(value)}")
+        try:
+            value = float(value)
+        except OverflowError:  # an integer beyond the float range (above about 1.8e308)
+            raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}") from None
         if not math.isfinite(value):
-            raise ConfigError(f"{key}: expected a finite number in {_allowed(meta)}, got {value!r}")
+            raise ConfigError(f"{key}: expected a finite number in {_allowed(meta)}, got {show_value(value)}")
     elif tp is str:
         if not isinstance(value, str):
             what = _allowed(meta) if meta.get("allowed") else f"one of {_allowed(meta)}"
-            raise ConfigError(f"{key}: expected {what}, got {value!r}")
+            raise ConfigError(f"{key}: expected {what}, got {show_value(value)}")
         if meta["choices"] and value not in meta["choices"]:
-            raise ConfigError(f"{key}: {value!r} is not allowed; allowed values: {_allowed(meta)}")
+            raise ConfigError(f"{key}: {show_value(value)} is not allowed; allowed values: {_allowed(meta)}")
         return value
     lo, hi = meta["lo"], meta["hi"]
     if lo is not None and (value < lo or (meta["lo_open"] and value == lo)):
-        raise ConfigError(f"{key}: {value!r} is out of range; allowed range: {_allowed(meta)}")
+        raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}")
     if hi is not None and value > hi:
-        raise ConfigError(f"{key}: {value!r} is out of range; allowed range: {_allowed(meta)}")
+        raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}")
     return value
 
 
@@ -723,14 +766,17 @@ def from_dict(data: Mapping[str, Any], base: ScenarioConfig | None = None) -> Sc
     sections: dict[str, Section] = {}
     for name, values in data.items():
         if name not in _SECTIONS:
-            raise ConfigError(f"unknown configuration section {name!r}; sections: {', '.join(_SECTIONS)}")
+            raise ConfigError(f"unknown configuration section {show_value(name)}; sections: {', '.join(_SECTIONS)}")
         if not isinstance(values, Mapping):
             raise ConfigError(f"section {name!r} must be a mapping of keys, got {type(values).__name__}")
         cls = _SECTIONS[name]
         known = {f.name for f in dataclasses.fields(cls)}
         for key in values:
             if key not in known:
-                raise ConfigError(f"unknown configuration key {name}.{key}; keys of {name}: {', '.join(sorted(known))}")
+                shown = show_text(key) if isinstance(key, str) else show_value(key)
+                raise ConfigError(
+                    f"unknown configuration key {name}.{shown}; keys of {name}: {', '.join(sorted(known))}"
+                )
         sections[name] = dataclasses.replace(getattr(base, name), **values)
     return dataclasses.replace(base, **sections)  # type: ignore[arg-type]
 
@@ -752,25 +798,56 @@ def apply_overrides(cfg: ScenarioConfig, assignments: Iterable[str]) -> Scenario
     nested: dict[str, dict[str, Any]] = {}
     for item in assignments:
         if "=" not in item:
-            raise ConfigError(f"--set expects section.key=value, got {item!r}")
+            raise ConfigError(f"--set expects section.key=value, got {show_value(item)}")
         dotted, value = item.split("=", 1)
         if dotted.count(".") != 1:
-            raise ConfigError(f"--set expects section.key=value, got {item!r}")
+            raise ConfigError(f"--set expects section.key=value, got {show_value(item)}")
         section, key = dotted.strip().split(".")
         try:
             nested.setdefault(section, {})[key] = parse_scalar(value)
         except YAMLError as exc:
-            raise ConfigError(f"--set {dotted.strip()}: {value!r} is not a valid YAML value: {exc}") from exc
+            raise ConfigError(
+                f"--set {show_text(dotted.strip())}: {show_value(value)} is not a valid YAML value: {exc}"
+            ) from exc
     return from_dict(nested, cfg)
 
 
-def load_config_file(path: str | Path, base: ScenarioConfig | None = None) -> ScenarioConfig:
-    """Read a YAML (1.2 core schema) or JSON configuration file (nested sections) over ``base``."""
+def load_config_file(
+    path: str | Path, base: ScenarioConfig | None = None, given_preset: str | None = None
+) -> ScenarioConfig:
+    """Read a YAML (1.2 core schema) or JSON configuration file (nested sections) over ``base``.
+
+    A top-level ``preset: NAME`` line replaces ``base`` with that preset.
+
+    Args:
+        path: the file (a regular file of at most 10 MiB: :data:`cv2x_marl.yamlcore.MAX_FILE_BYTES`).
+        base: the configuration the file's sections apply over (None: the defaults).
+        given_preset: the preset named elsewhere (the command line's ``--preset``); a ``preset:``
+            line naming another preset is refused, so neither silently beats the other.
+
+    Raises:
+        ConfigError: the file cannot be read or is too large, a bad key or value, or a ``preset:``
+            line that disagrees with ``given_preset``.
+    """
     from cv2x_marl.yamlcore import load_mapping
 
     data = load_mapping(path, "configuration file", ConfigError)
     if "preset" in data:
-        base = preset(str(data.pop("preset")))
+        name = data.pop("preset")
+        if not isinstance(name, str):
+            raise ConfigError(
+                f"configuration file {path}: preset: expected a preset name, got {show_value(name)}; "
+                f"presets: {', '.join([*PRESETS, *PRESET_ALIASES])}"
+            )
+        if given_preset is not None and PRESET_ALIASES.get(name, name) != PRESET_ALIASES.get(
+            given_preset, given_preset
+        ):
+            raise ConfigError(
+                f"--preset {given_preset} and the line 'preset: {show_text(name)}' of configuration file "
+                f"{path} name different presets; name the preset in one place (drop --preset or the file's "
+                "preset: line)"
+            )
+        base = preset(name)
     return from_dict(data, base)
 
 
@@ -781,9 +858,11 @@ def config_markdown() -> str:
         "",
         "Generated from the field metadata in `cv2x_marl/config.py` by `cv2x-marl config --markdown`;",
         "`tests/test_config.py` fails when this file is stale. Set keys with `--set section.key=value`",
-        "or a YAML/JSON file of sections (`--config FILE`, optional top-level `preset: NAME`). Values",
-        "follow the YAML 1.2 core schema (`5.9e9` is a number, `010` is 10, `1:40` and `yes` are strings;",
-        "`cv2x_marl/yamlcore.py`). A scenario has at most 100,000 vehicles, counted after",
+        "or a YAML/JSON file of sections (`--config FILE`, optional top-level `preset: NAME`; a `--preset`",
+        "naming another preset is refused). Values follow the YAML 1.2 core schema (`5.9e9` is a number,",
+        "`010` is 10, `1:40` and `yes` are strings; `cv2x_marl/yamlcore.py`). A configuration file is a",
+        "regular file of at most 10 MiB, nested at most 100 levels deep, with at most 100,000 values once",
+        "YAML aliases are expanded. A scenario has at most 100,000 vehicles, counted after",
         "`vehicles.density_veh_per_m` x road length.",
         "The defaults are the paper's scenario (Table 1 of the paper: the 450 m grid, 21 vehicles) with",
         "the standard's Mode 4 procedures (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1, TS 36.101 6.5.2.3,",

@@ -1,10 +1,12 @@
-"""Atomic file output: write to a temporary file in the same folder, then rename."""
+"""File input and output: atomic writes (a temporary file in the same folder, then a rename) and
+size-capped reads of input files."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -53,3 +55,55 @@ def write_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented strict JSON (NaN and infinities as null), atomically."""
     text = dumps_json(data) + "\n"
     return atomic_write(path, lambda p: p.write_text(text))
+
+
+class InputFileError(ValueError):
+    """An input file that is not a regular file, or is larger than the limit for its kind."""
+
+
+def _kind_of(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a named pipe"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def read_text_limited(path: str | Path, limit_bytes: int, what: str = "input file") -> str:
+    """The text of a regular file of at most ``limit_bytes`` bytes (UTF-8).
+
+    Devices, pipes and folders are refused before they are opened (``/dev/zero`` would never end),
+    and no more than ``limit_bytes + 1`` bytes are ever read, whatever the file system says its size is.
+
+    Args:
+        path: the file.
+        limit_bytes: the largest size accepted, in bytes.
+        what: what the file is, for messages (``configuration file``, ``model file``, ...).
+
+    Raises:
+        OSError: the file does not exist or cannot be read.
+        InputFileError: not a regular file, larger than ``limit_bytes``, or not UTF-8 text; the message
+            names ``what``, the file, its size and the limit.
+    """
+    path = Path(path)
+    mode = os.stat(path).st_mode
+    if not stat.S_ISREG(mode):
+        raise InputFileError(f"{what} {path} is {_kind_of(mode)}, not a regular file; give a file")
+    with open(path, "rb") as f:
+        data = f.read(limit_bytes + 1)
+        size = os.fstat(f.fileno()).st_size
+    if len(data) > limit_bytes:
+        shown = f"{size:,} bytes" if size > limit_bytes else f"more than {limit_bytes:,} bytes"
+        raise InputFileError(
+            f"{what} {path} is {shown}, above the limit of {limit_bytes:,} bytes ({limit_bytes / 2**20:g} MiB) "
+            f"for a {what}"
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{what} {path} is not UTF-8 text: {exc.reason} at byte {exc.start}") from exc

@@ -6,7 +6,6 @@ so a folder without one is an interrupted or foreign run and is refused.
 
 from __future__ import annotations
 
-import json
 import platform
 import sys
 import time
@@ -18,14 +17,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import cv2x_marl
-from cv2x_marl.config import ScenarioConfig, to_dict
+from cv2x_marl.config import ConfigError, ScenarioConfig, show_value, to_dict
 from cv2x_marl.experiments.simulate import write_parquet
-from cv2x_marl.io import write_json
-from cv2x_marl.regression import FitData, FitError, TwoDistanceModel, fit_two_distance
+from cv2x_marl.io import InputFileError, read_text_limited, write_json
+from cv2x_marl.regression import MAX_NSV_CAP, FitData, FitError, TwoDistanceModel, fit_two_distance
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import RunFolder, sha256_file
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.yamlcore import load_json
 
 MANIFEST = "manifest.json"
 SAMPLES = "samples.parquet"
@@ -107,9 +107,79 @@ def build_dataset(
             "vehicles.population=open a slot is reused by different vehicles; use per-packet samples "
             "(--aggregate-window-ms 0) or vehicles.population=fixed"
         )
+    check_dataset_memory(cfg, runs, aggregate_window_ms != 0)
     params = {"runs": runs, "seed": seed, "aggregate_window_ms": aggregate_window_ms}
     with RunFolder(out_dir, "dataset", overwrite=overwrite, parameters=params):
         return _build_dataset(cfg, runs, seed, Path(out_dir), aggregate_window_ms, progress, ray, address)
+
+
+#: bytes of one sample row while the dataset is built: the column dtypes of :func:`_one_run`
+#: (run, tx, rx int32; subframe int64; d_m, l_m, p_success, sinr_db float64; nsv int16; outcome bool)
+SAMPLE_ROW_BYTES = 3 * 4 + 8 + 4 * 8 + 2 + 1
+#: bytes per row of the aggregation's temporaries (window, key, unique's order, first index, inverse: int64)
+AGGREGATE_ROW_BYTES = 5 * 8
+#: bytes per run besides its samples: its seed in lists and the manifest, its part's arrays
+RUN_OVERHEAD_BYTES = 2_000
+
+
+def estimate_dataset_bytes(cfg: ScenarioConfig, runs: int, aggregate: bool = False) -> dict[str, int]:
+    """Peak memory of :func:`build_dataset`, from the configuration alone (nothing is allocated).
+
+    Every run's samples are kept until the end, then concatenated (two copies at once), and aggregated
+    with ``aggregate``; the simulator of one run comes on top
+    (:func:`cv2x_marl.sim.memory.estimate_memory_bytes`). Sample rows per run are the links-table rows
+    of the memory model (:func:`cv2x_marl.experiments.simulate.expected_link_rows`: every transmission
+    to every receiver in range, half-duplex pairs included, so an upper bound).
+
+    Returns:
+        ``rows_per_run``, ``rows`` (all runs), ``samples`` (bytes of the samples and their
+        concatenation), ``simulator`` (bytes of one run's simulator) and ``total`` (bytes).
+    """
+    from cv2x_marl.experiments.simulate import expected_link_rows
+    from cv2x_marl.sim.memory import estimate_memory_bytes
+
+    per_run = expected_link_rows(cfg, cfg.sim.n_subframes)
+    rows = runs * per_run
+    samples = rows * (2 * SAMPLE_ROW_BYTES + (AGGREGATE_ROW_BYTES if aggregate else 0)) + runs * RUN_OVERHEAD_BYTES
+    simulator = estimate_memory_bytes(cfg)["total"]
+    return {
+        "rows_per_run": per_run,
+        "rows": rows,
+        "samples": samples,
+        "simulator": simulator,
+        "total": samples + simulator,
+    }
+
+
+def check_dataset_memory(cfg: ScenarioConfig, runs: int, aggregate: bool = False) -> dict[str, int]:
+    """Refuse a dataset whose estimated peak memory (:func:`estimate_dataset_bytes`) exceeds the limit.
+
+    The limit is ``CV2X_MARL_MEMORY_LIMIT_GB`` (GB) when set, else the memory available now
+    (:func:`cv2x_marl.sim.memory.available_memory_bytes`; not read for estimates below 256 MiB).
+
+    Raises:
+        ConfigError: naming ``--runs``, the estimate, the limit and how many runs fit.
+    """
+    from cv2x_marl.sim.memory import ENV_LIMIT, QUICK_PASS_BYTES, _env_limit_bytes, _gb, available_memory_bytes
+
+    est = estimate_dataset_bytes(cfg, runs, aggregate)
+    limit = _env_limit_bytes()
+    source = ENV_LIMIT
+    if limit is None:
+        if est["total"] <= QUICK_PASS_BYTES:
+            return est
+        limit, source = available_memory_bytes(), "the memory available now, MemAvailable"
+    if est["total"] <= limit:
+        return est
+    per_run = (est["samples"] + runs - 1) // runs
+    fit = max(0, (limit - est["simulator"]) // max(1, per_run))
+    fits = f"about {fit:,} runs fit" if fit >= 1 else "not one run fits"
+    raise ConfigError(
+        f"dataset --runs {runs:,}: {runs:,} runs x up to {est['rows_per_run']:,} link samples per run "
+        f"({cfg.n_vehicles} vehicles, sim.n_subframes={cfg.sim.n_subframes}) = {est['rows']:,} samples, "
+        f"estimated {_gb(est['total'])} of memory, above the limit of {_gb(limit)} ({source}); {fits}: lower "
+        f"--runs, --subframes or the vehicle count, or set {ENV_LIMIT}"
+    )
 
 
 def _one_run(cfg: ScenarioConfig, run_id: int, run_seed: int) -> dict[str, np.ndarray]:
@@ -196,12 +266,25 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
             f"(create one with `cv2x-marl dataset --out {data_dir}`)"
         )
     try:
-        manifest = json.loads(mpath.read_text())
-    except json.JSONDecodeError as exc:
+        manifest = load_json(read_text_limited(mpath, MAX_MANIFEST_BYTES, "dataset manifest"))
+    except InputFileError as exc:
+        raise DatasetError(str(exc)) from exc
+    except ValueError as exc:  # json.JSONDecodeError, too deep a document
         raise DatasetError(f"{mpath} is not valid JSON: {exc}") from exc
+    if not isinstance(manifest, dict):
+        raise DatasetError(
+            f"{mpath} holds a JSON {type(manifest).__name__}, not the object of a dataset manifest: not a dataset "
+            f"written by `cv2x-marl dataset`; rebuild it"
+        )
     spath = data_dir / SAMPLES
-    expected = (manifest.get("sha256") or {}).get(SAMPLES)
-    if expected is not None and spath.is_file() and sha256_file(spath) != expected:
+    checksums = manifest.get("sha256")
+    expected = checksums.get(SAMPLES) if isinstance(checksums, dict) else None
+    if not isinstance(expected, str):
+        raise DatasetError(
+            f"{mpath} has no SHA-256 of {SAMPLES} (key sha256.{SAMPLES}): the manifest was edited or is not "
+            "from `cv2x-marl dataset`; rebuild the dataset"
+        )
+    if spath.is_file() and sha256_file(spath) != expected:
         raise DatasetError(
             f"{spath} does not match the SHA-256 in {mpath}: the file was changed or corrupted; rebuild the dataset"
         )
@@ -209,13 +292,51 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
         table = pq.read_table(spath)
     except (OSError, pa.ArrowInvalid) as exc:
         raise DatasetError(f"cannot read {spath}: {exc}") from exc
-    cols = {name: table.column(name).to_numpy() for name in table.column_names}
-    missing = {"run", "tx", "rx", "d_m", "l_m", "nsv", "p_success"} - set(cols)
+    missing = {"run", "tx", "rx", "d_m", "l_m", "nsv", "p_success"} - set(table.column_names)
     if missing:
         raise DatasetError(f"{spath} lacks columns {sorted(missing)}")
     if table.num_rows != manifest.get("rows"):
-        raise DatasetError(f"{spath} has {table.num_rows} rows, the manifest says {manifest.get('rows')}")
-    return cols, manifest
+        raise DatasetError(f"{spath} has {table.num_rows} rows, the manifest says {show_value(manifest.get('rows'))}")
+    return _numeric_columns(table, spath), manifest
+
+
+#: the largest ``manifest.json`` read, in bytes (a manifest lists one seed per run: some 30 bytes each)
+MAX_MANIFEST_BYTES = 256 * 2**20
+#: the columns a dataset may hold; all of them are numbers (``outcome`` true/false)
+NUMERIC_COLUMNS = ("run", "tx", "rx", "subframe", "window", "d_m", "l_m", "nsv", "p_success", "outcome", "rate", "n")
+
+
+def _numeric_columns(table: pa.Table, spath: Path) -> dict[str, np.ndarray]:
+    """The columns of ``table`` as arrays, refusing (naming the file, the column and the count of bad rows)
+    a known column that holds no numbers, and any empty (null), NaN or infinite value in a numeric column."""
+    cols: dict[str, np.ndarray] = {}
+    rows = table.num_rows
+    for name in table.column_names:
+        column = table.column(name)
+        kind = column.type
+        numeric = pa.types.is_integer(kind) or pa.types.is_floating(kind) or pa.types.is_boolean(kind)
+        if not numeric:
+            if name in NUMERIC_COLUMNS:
+                raise DatasetError(
+                    f"{spath}: column {name!r} holds {kind} values, not numbers; a dataset written by "
+                    "`cv2x-marl dataset` holds numbers only: rebuild it"
+                )
+            continue  # a column of the user's own; the fit reads only the columns it knows
+        if column.null_count:
+            raise DatasetError(
+                f"{spath}: column {name!r} has {column.null_count:,} of {rows:,} rows empty (null); a dataset holds "
+                "a number in every row: rebuild it"
+            )
+        values = column.to_numpy()
+        if pa.types.is_floating(kind):
+            bad = int(np.count_nonzero(~np.isfinite(values)))
+            if bad:
+                raise DatasetError(
+                    f"{spath}: column {name!r} has {bad:,} of {rows:,} rows that are NaN or infinite; a dataset "
+                    "holds finite numbers: rebuild it"
+                )
+        cols[name] = values
+    return cols
 
 
 def fit_data(cols: dict[str, np.ndarray], target: str) -> FitData:
@@ -297,6 +418,11 @@ def run_fit(
         raise FitError(
             f"fit --out is a folder (it receives {MODEL}, tables and figures), got the file name {out_dir}; "
             f"use e.g. --out {out_dir.with_suffix('')}"
+        )
+    if not 0 <= nsv_cap <= MAX_NSV_CAP:
+        raise FitError(
+            f"--nsv-cap {show_value(nsv_cap)} is out of range: NSV values 0 to the cap get their own coefficients "
+            f"(the paper: 6); allowed range: [0, {MAX_NSV_CAP}]"
         )
     cols, manifest = load_dataset(data_dir)  # a bad dataset is refused before the folder is touched
     if target is None:

@@ -24,6 +24,11 @@ class FitError(ValueError):
     """The data cannot support the requested fit."""
 
 
+#: the largest ``nsv_cap``: NSV values from 0 to the cap each get their own coefficients (the paper: 6);
+#: aggregated datasets count NSV up to 255, and a cap above that only repeats fallback rows
+MAX_NSV_CAP = 255
+
+
 @dataclass(frozen=True)
 class FitData:
     """Samples for the fit (arrays of one length S).
@@ -47,8 +52,10 @@ class FitData:
         for name in ("l_m", "nsv", "target", "group"):
             if getattr(self, name).shape != (n,):
                 raise FitError(f"{name} has shape {getattr(self, name).shape}, expected ({n},)")
-        if n and (np.any(self.d_m <= 0) or np.any(self.l_m <= 0)):
-            raise FitError("distances must be > 0 m (log10 of metres)")
+        if n and not (np.all(self.d_m > 0) and np.all(self.l_m > 0)):  # NaN fails the test too
+            raise FitError("distances must be > 0 m (log10 of metres), not NaN")
+        if n and not (np.all(np.isfinite(self.d_m)) and np.all(np.isfinite(self.l_m))):
+            raise FitError("distances must be finite")
         if n and (np.any(self.target < 0) or np.any(self.target > 1) or np.any(~np.isfinite(self.target))):
             raise FitError("targets must lie in [0, 1]")
 
@@ -136,8 +143,8 @@ def fit_two_distance(
     """
     if kind not in KINDS:
         raise ModelError(f"unknown model kind {kind!r}; kinds: {', '.join(KINDS)}")
-    if nsv_cap < 0:
-        raise FitError(f"nsv_cap must be >= 0, got {nsv_cap}")
+    if not 0 <= nsv_cap <= MAX_NSV_CAP:
+        raise FitError(f"nsv_cap must be an integer in [0, {MAX_NSV_CAP}], got {nsv_cap}")
     k_all = np.minimum(data.nsv, nsv_cap)
     test = holdout_mask(data.group, test_fraction, seed)
     x_all = _features(data.d_m, data.l_m)

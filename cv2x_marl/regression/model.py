@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cv2x_marl.io import strict, write_json
+from cv2x_marl.config import show_value
+from cv2x_marl.io import InputFileError, read_text_limited, strict, write_json
 
 FloatArray = NDArray[np.float64]
 SCHEMA_VERSION = 1
@@ -36,6 +37,13 @@ LN10 = math.log(10.0)
 
 class ModelError(ValueError):
     """A model file is missing, corrupt, of another schema, or of an unknown kind."""
+
+
+#: the largest magnitude of a coefficient (eq. 15 on log10 of metres: fitted values are of order 1; the
+#: paper's Table 2 lies within +-1.8); larger ones would overflow the gradients GBMU steps along
+MAX_ABS_COEFFICIENT = 1e6
+#: the largest model file read, in bytes
+MAX_MODEL_BYTES = 10 * 2**20
 
 
 # The paper's Table 2 (NSV 0..6), log10 of metres.
@@ -68,14 +76,21 @@ class TwoDistanceModel:
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
-            raise ModelError(f"unknown model kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+            raise ModelError(f"unknown model kind {show_value(self.kind)}; kinds: {', '.join(KINDS)}")
         self.alpha = np.asarray(self.alpha, dtype=np.float64)
         self.beta = np.asarray(self.beta, dtype=np.float64)
         self.gamma = np.asarray(self.gamma, dtype=np.float64)
         if not (self.alpha.shape == self.beta.shape == self.gamma.shape) or self.alpha.ndim != 1 or not self.alpha.size:
             raise ModelError("alpha, beta and gamma must be equal-length, non-empty 1-D arrays")
-        if not np.all(np.isfinite(np.r_[self.alpha, self.beta, self.gamma])):
-            raise ModelError("model coefficients must be finite")
+        for name in ("alpha", "beta", "gamma"):
+            values = getattr(self, name)
+            bad = np.flatnonzero(~(np.abs(values) <= MAX_ABS_COEFFICIENT))  # NaN fails the test too
+            if bad.size:
+                k = int(bad[0])
+                raise ModelError(
+                    f"{name} of NSV {k} is {values[k]:g}: model coefficients must be finite numbers within "
+                    f"+-{MAX_ABS_COEFFICIENT:g}"
+                )
         if not 0.0 < self.p_min < 1.0:
             raise ModelError(f"p_min must lie in (0, 1), got {self.p_min}")
 
@@ -172,25 +187,27 @@ class TwoDistanceModel:
             raise ModelError(f"{source}: expected a JSON object")
         version = data.get("schema_version")
         if version != SCHEMA_VERSION:
-            raise ModelError(f"{source}: schema_version {version!r} is not supported (expected {SCHEMA_VERSION})")
+            raise ModelError(
+                f"{source}: schema_version {show_value(version)} is not supported (expected {SCHEMA_VERSION})"
+            )
         try:
             rows = sorted(data["per_nsv"], key=lambda r: int(r["nsv"]))
             if [int(r["nsv"]) for r in rows] != list(range(len(rows))):
-                raise ModelError(f"{source}: per_nsv must list NSV 0, 1, ... without gaps")
-            coef = {c: np.array([float(r[c]) for r in rows]) for c in ("alpha", "beta", "gamma")}
-            stats = [{k: v for k, v in r.items() if k not in ("alpha", "beta", "gamma")} for r in rows]
+                raise ModelError("per_nsv must list NSV 0, 1, ... without gaps")
+            coef = {c: np.array([_number(r[c], f"per_nsv[{i}].{c}") for i, r in enumerate(rows)]) for c in _COEFS}
+            stats = [{k: v for k, v in r.items() if k not in _COEFS} for r in rows]
             return cls(
                 str(data["kind"]),
                 coef["alpha"],
                 coef["beta"],
                 coef["gamma"],
-                p_min=float(data.get("p_min", 1e-3)),
+                p_min=_number(data.get("p_min", 1e-3), "p_min"),
                 stats=stats,
                 provenance=dict(data.get("provenance", {})),
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, ModelError):
-                raise
+        except ModelError as exc:
+            raise ModelError(f"{source}: {exc}") from exc
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ModelError(f"{source}: malformed model ({type(exc).__name__}: {exc})") from exc
 
     def save(self, path: str | Path) -> Path:
@@ -201,21 +218,60 @@ class TwoDistanceModel:
     @classmethod
     def load(cls, path: str | Path) -> TwoDistanceModel:
         """Read a model file written by :meth:`save` (or ``cv2x-marl fit``)."""
+        from cv2x_marl.yamlcore import load_json
+
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
+            data = load_json(read_text_limited(path, MAX_MODEL_BYTES, "model file"))
         except FileNotFoundError as exc:
             raise ModelError(f"model file {path} does not exist") from exc
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        except InputFileError as exc:
+            raise ModelError(str(exc)) from exc
+        except ValueError as exc:  # json.JSONDecodeError, too deep a document
             raise ModelError(f"model file {path} is not valid JSON: {exc}") from exc
-        if isinstance(data, dict) and "sha256" in data:
-            payload = {k: v for k, v in data.items() if k != "sha256"}
-            if _digest(payload) != data["sha256"]:
-                raise ModelError(
-                    f"model file {path} does not match its SHA-256: the file was edited or corrupted; refit it"
-                )
-            data = payload
-        return cls.from_dict(data, source=f"model file {path}")
+        if not isinstance(data, dict):
+            raise ModelError(f"model file {path}: expected a JSON object, got a JSON {type(data).__name__}")
+        where = _non_finite(data)
+        if where is not None:  # json reads NaN, Infinity and 1e999; no model written by save holds one
+            raise ModelError(f"model file {path}: {where} is not a finite number (NaN or infinite)")
+        if not isinstance(data.get("sha256"), str):
+            raise ModelError(
+                f"model file {path} has no sha256 key (the SHA-256 of its content that `cv2x-marl fit` writes): "
+                "the file was edited or is not a model written by this package; refit it"
+            )
+        payload = {k: v for k, v in data.items() if k != "sha256"}
+        if _digest(payload) != data["sha256"]:
+            raise ModelError(
+                f"model file {path} does not match its SHA-256: the file was edited or corrupted; refit it"
+            )
+        return cls.from_dict(payload, source=f"model file {path}")
+
+
+_COEFS = ("alpha", "beta", "gamma")
+
+
+def _number(value: Any, key: str) -> float:
+    """``value`` as a float; a ModelError naming ``key`` for anything but a JSON number."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ModelError(f"{key}: expected a number, got {type(value).__name__}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ModelError(f"{key}: an integer beyond the range of a float") from None
+
+
+def _non_finite(data: Any, where: str = "") -> str | None:
+    """The key path (``per_nsv[2].alpha``) of the first NaN or infinite number in ``data``, else None."""
+    stack: list[tuple[Any, str]] = [(data, where)]
+    while stack:
+        value, at = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            return at or "the value"
+        if isinstance(value, dict):
+            stack.extend((v, f"{at}.{k}" if at else str(k)) for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            stack.extend((v, f"{at}[{i}]") for i, v in reversed(list(enumerate(value))))
+    return None
 
 
 def _digest(payload: Any) -> str:

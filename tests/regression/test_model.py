@@ -2,11 +2,13 @@
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from cv2x_marl.regression import FitData, FitError, ModelError, TwoDistanceModel, fit_two_distance
+from cv2x_marl.regression.model import _digest
 
 TRUE = {
     "alpha": np.array([-0.8, -0.7, -0.6]),
@@ -86,6 +88,11 @@ def test_json_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.predict(d, l_m, [1, 2]), m.predict(d, l_m, [1, 2]))
 
 
+def _write_checksummed(path: Path, payload: dict[str, Any]) -> None:
+    """A model file as `save` writes it: ``payload`` with the SHA-256 of its content."""
+    path.write_text(json.dumps({**payload, "sha256": _digest(payload)}))
+
+
 def test_bad_model_files_are_clear_errors(tmp_path: Path) -> None:
     with pytest.raises(ModelError, match="does not exist"):
         TwoDistanceModel.load(tmp_path / "missing.json")
@@ -94,13 +101,13 @@ def test_bad_model_files_are_clear_errors(tmp_path: Path) -> None:
     with pytest.raises(ModelError, match=r"bad\.json.*not valid JSON"):
         TwoDistanceModel.load(bad)
     doc = TwoDistanceModel.paper_table2().to_dict()
-    (tmp_path / "v9.json").write_text(json.dumps({**doc, "schema_version": 9}))
+    _write_checksummed(tmp_path / "v9.json", {**doc, "schema_version": 9})
     with pytest.raises(ModelError, match="schema_version 9"):
         TwoDistanceModel.load(tmp_path / "v9.json")
-    (tmp_path / "kind.json").write_text(json.dumps({**doc, "kind": "forest"}))
-    with pytest.raises(ModelError, match=r"forest.*linear, logistic"):
+    _write_checksummed(tmp_path / "kind.json", {**doc, "kind": "forest"})
+    with pytest.raises(ModelError, match=r"kind\.json: unknown model kind 'forest'.*linear, logistic"):
         TwoDistanceModel.load(tmp_path / "kind.json")
-    (tmp_path / "cut.json").write_text(json.dumps({**doc, "per_nsv": [{"nsv": 0, "alpha": 1.0}]}))
+    _write_checksummed(tmp_path / "cut.json", {**doc, "per_nsv": [{"nsv": 0, "alpha": 1.0}]})
     with pytest.raises(ModelError, match="malformed"):
         TwoDistanceModel.load(tmp_path / "cut.json")
     with pytest.raises(ModelError, match="unknown model kind"):
