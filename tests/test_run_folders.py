@@ -303,3 +303,22 @@ def test_a_signal_inside_a_compiled_kernel_ends_as_interrupted(tmp_path: Path, s
     assert f"cv2x-marl: interrupted; the previous run in {out} was restored" in stderr
     assert "SystemError" not in stderr and "Traceback" not in stderr
     assert _snapshot(out) == before
+
+
+# -- 13: after SIGKILL, readers say where the previous run is ---------------------------------------
+def test_a_dataset_left_half_replaced_by_a_killed_run_names_the_intact_previous_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ds = tmp_path / "ds"
+    assert main(["dataset", "--runs", "1", "--out", str(ds), "--quiet", "--subframes", "300"]) == 0
+    before = _snapshot(ds)
+    aside = tmp_path / f"{runs._aside_prefix(ds)}4242"  # what a `dataset --overwrite` killed mid-run leaves
+    os.replace(ds, aside)
+    ds.mkdir()
+    (ds / "run.json").write_text(json.dumps({"kind": runs.KIND, "command": "dataset", "status": "running"}))
+    assert main(["fit", "--data", str(ds), "--out", str(tmp_path / "fit"), "--no-figures"]) == 2
+    assert f"the previous dataset is intact in {aside}" in capsys.readouterr().err
+    assert not (tmp_path / "fit").exists()
+    # the next run on the folder repairs it (here a refused one: it takes the lock first)
+    assert main(["dataset", "--runs", "1", "--out", str(ds), "--quiet", "--subframes", "300"]) == 2
+    assert _snapshot(ds) == before and not aside.exists()

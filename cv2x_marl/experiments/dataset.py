@@ -22,7 +22,7 @@ from cv2x_marl.experiments.simulate import write_parquet
 from cv2x_marl.io import InputFileError, read_text_limited, write_json
 from cv2x_marl.regression import MAX_NSV_CAP, FitData, FitError, TwoDistanceModel, fit_two_distance
 from cv2x_marl.rng import derive_seeds
-from cv2x_marl.runs import RunFolder, sha256_file
+from cv2x_marl.runs import RunFolder, previous_run_aside, sha256_file
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.yamlcore import load_json
@@ -261,10 +261,14 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
         raise DatasetError(f"dataset folder {data_dir} does not exist")
     mpath = data_dir / MANIFEST
     if not mpath.exists():
-        raise DatasetError(
-            f"{data_dir} has no {MANIFEST}: not a complete dataset "
-            f"(create one with `cv2x-marl dataset --out {data_dir}`)"
+        aside = previous_run_aside(data_dir)
+        hint = (
+            f"; a run that was replacing it was killed: the previous dataset is intact in {aside}, and the next "
+            f"`cv2x-marl dataset --out {data_dir}` (or any run with that --out) puts it back first"
+            if aside is not None
+            else f" (create one with `cv2x-marl dataset --out {data_dir}`)"
         )
+        raise DatasetError(f"{data_dir} has no {MANIFEST}: not a complete dataset{hint}")
     try:
         manifest = load_json(read_text_limited(mpath, MAX_MANIFEST_BYTES, "dataset manifest"))
     except InputFileError as exc:
@@ -428,7 +432,7 @@ def run_fit(
     if target is None:
         target = "rate" if manifest.get("aggregate_window_ms") else "p_success"
     params = {"data": str(data_dir), "kind": kind, "target": target, "nsv_cap": nsv_cap, "seed": seed}
-    with RunFolder(out_dir, "fit", overwrite=overwrite, parameters=params):
+    with RunFolder(out_dir, "fit", overwrite=overwrite, parameters=params, inputs=[data_dir]):
         return _fit(
             cols,
             manifest,
