@@ -695,9 +695,7 @@ def train(
                     "ask for more steps to continue it (its model.zip is kept as it is)"
                 )
         params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps}
-        with RunFolder(
-            run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params
-        ):
+        with RunFolder(run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params):
             return _train(cfg, timesteps, seed, run_dir, resolved, resume, progress, vec, model, rollout)
     finally:
         vec.close()
@@ -726,7 +724,7 @@ def _train(
         # that were collected but never trained on
         model.num_timesteps = trained_steps(model.num_timesteps, rollout)
         model.set_random_seed(seed + model.num_timesteps)
-        # the learning curve goes back to the checkpoint: rows of a discarded segment are dropped
+    if resume:  # the learning curve goes back to the checkpoint (to nothing without one): rows of a lost segment go
         _cut_back(run_dir, model.num_timesteps, checkpoints=False)
     start = model.num_timesteps
     remaining = max(0, timesteps - start)
