@@ -219,14 +219,16 @@ TUNE_SIGINT_SWITCH = "TUNE_DISABLE_SIGINT_HANDLER"
 
 @contextlib.contextmanager
 def _interrupts_raise() -> Any:
-    """Ctrl-C raises KeyboardInterrupt during ``Tuner.fit`` instead of being caught by Tune.
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt while Ray runs the sweep (enter before Ray starts).
 
-    Tune (``ray.tune.tune._setup_signal_catching``) replaces the SIGINT handler by one that only
-    ends its loop: ``fit`` then returns a result grid with the unfinished trials and logs a restore
-    hint for a folder this run removes. With Tune's switch set, the first Ctrl-C raises at once
-    (SIGTERM does already: the CLI turns it into KeyboardInterrupt); Ray's shutdown
-    (:func:`cv2x_marl.parallel.ray_session`) stops the trials. The SIGUSR1 handler Tune also installs
-    is put back afterwards, as are the switch and the SIGINT handler.
+    Ray and Tune each replace a handler: ``ray.init`` makes SIGTERM call ``sys.exit`` (and its core
+    logs the signal and aborts the process: exit -6, no message), and ``Tuner.fit``
+    (``ray.tune.tune._setup_signal_catching``) makes SIGINT only end Tune's loop, so ``fit`` returns
+    the unfinished trials and logs a restore hint for a folder this run removes. Here Tune's switch
+    (:data:`TUNE_SIGINT_SWITCH`) keeps Python's Ctrl-C, and :func:`_raise_on_sigterm`, called once
+    Ray has started, puts back SIGTERM -> KeyboardInterrupt. Ray's shutdown
+    (:func:`cv2x_marl.parallel.ray_session`) then stops the trials. The handlers (SIGINT, SIGTERM
+    and the SIGUSR1 Tune also takes) and the switch are put back afterwards.
     """
     import os
     import signal
@@ -234,7 +236,8 @@ def _interrupts_raise() -> Any:
 
     previous = os.environ.get(TUNE_SIGINT_SWITCH)
     main = threading.current_thread() is threading.main_thread()
-    handlers = {sig: signal.getsignal(sig) for sig in _tune_signals()} if main else {}
+    names = ("SIGINT", "SIGTERM", "SIGUSR1")
+    handlers = {getattr(signal, n): signal.getsignal(getattr(signal, n)) for n in names if hasattr(signal, n)}
     os.environ[TUNE_SIGINT_SWITCH] = "1"
     try:
         yield
@@ -243,21 +246,28 @@ def _interrupts_raise() -> Any:
             os.environ.pop(TUNE_SIGINT_SWITCH, None)
         else:
             os.environ[TUNE_SIGINT_SWITCH] = previous
-        for sig, handler in handlers.items():
+        for sig, handler in handlers.items() if main else ():
             if handler is not None:
                 signal.signal(sig, handler)
 
 
-def _tune_signals() -> list[int]:
+def _raise_on_sigterm() -> None:
+    """SIGTERM raises KeyboardInterrupt (as in the CLI), replacing Ray's handler (main thread only)."""
     import signal
+    import threading
 
-    return [signal.SIGINT, *([signal.SIGUSR1] if hasattr(signal, "SIGUSR1") else [])]
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
 
 
 def _run_on_tune(
     specs: list[dict[str, Any]], out_dir: Path, address: str | None, progress: bool
 ) -> list[dict[str, Any]]:
-    with ray_session(address):
+    with _interrupts_raise(), ray_session(address):
+        _raise_on_sigterm()
         from ray import tune
 
         tuner = tune.Tuner(
@@ -265,7 +275,7 @@ def _run_on_tune(
             param_space={"trial": tune.grid_search(specs)},
             run_config=tune.RunConfig(name="sweep", storage_path=str(out_dir / "tune"), verbose=1 if progress else 0),
         )
-        with contextlib.redirect_stdout(sys.stderr), _interrupts_raise():  # Tune's tables never mix into --json
+        with contextlib.redirect_stdout(sys.stderr):  # Tune's tables never mix into --json output
             grid = tuner.fit()
         rows = []
         unfinished = []
