@@ -252,14 +252,15 @@ def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
     points = result["points"]
     fig, ax = _subplots(figsize=(max(5.0, 1.2 * len(points) + 2.5), 4.0), constrained_layout=True)
     for i, p in enumerate(points):
-        gains = [
+        gains = [  # failed trials (no metrics, or None) have no dot
             100 * t["mean_utility_gain"]
             for t in result["trials"]
-            if t["config"] == p["config"] and t["status"] == "TERMINATED"
+            if t["config"] == p["config"] and t["status"] == "TERMINATED" and t.get("mean_utility_gain") is not None
         ]
-        if gains:
-            sd = 100 * (p["std_utility_gain"] or 0.0)
+        if p.get("mean_utility_gain") is not None:
+            sd = 100 * (p.get("std_utility_gain") or 0.0)
             ax.bar(i, 100 * p["mean_utility_gain"], yerr=sd, color="#4e79a7", alpha=0.6, capsize=4)
+        if gains:
             ax.plot([i] * len(gains), gains, "ko", ms=4)
     ax.set_xticks(range(len(points)), [p["label"] for p in points], rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("held-out mean utility gain (%)")

@@ -158,7 +158,11 @@ def run_sweep(
         a trial's ``status`` is Tune's (``TERMINATED`` or ``ERROR``).
 
     Raises:
-        TrainError: no seeds, a bad grid value (checked before Ray starts), or every trial failed.
+        TrainError: no seeds, a bad grid value or configuration (every grid point is checked as
+            :func:`cv2x_marl.rl.train.check_training_config` does, before the folder is created and
+            Ray starts), or every trial failed.
+        SweepInterrupted: Tune stopped before every trial finished; Ctrl-C and SIGTERM raise
+            KeyboardInterrupt at once. Either way the sweep folder is rolled back and nothing is plotted.
     """
     from cv2x_marl.runs import RunFolder
 
@@ -168,6 +172,15 @@ def run_sweep(
         raise TrainError(f"--seeds: repeated seed in {list(seeds)}")
     points = grid_points(grid)
     configs = [apply_point(base, p) for p in points]  # every grid value validated before Ray starts
+    from cv2x_marl.rl.train import check_training_config
+
+    for point, cfg in zip(points, configs, strict=True):  # env arguments, SB3 rules, memory: before the folder
+        try:
+            check_training_config(cfg)
+        except TrainError as exc:
+            if not point:
+                raise
+            raise TrainError(f"grid point {_label(point)}: {exc}") from exc
     out_dir = Path(out_dir).resolve()
     params = {"seeds": list(seeds), "grid": grid, "timesteps": timesteps, "eval_seed": eval_seed}
     with RunFolder(out_dir, "sweep", overwrite=overwrite, parameters=params):
@@ -195,10 +208,66 @@ def run_sweep(
     return result
 
 
+class SweepInterrupted(KeyboardInterrupt):
+    """A sweep stopped before its trials finished (Ctrl-C, SIGTERM, or Tune's own stop signal):
+    the sweep folder is rolled back like any interrupted run, and nothing is summarised or plotted."""
+
+
+#: Ray Tune's switch for its own SIGINT handler (read when ``Tuner.fit`` starts)
+TUNE_SIGINT_SWITCH = "TUNE_DISABLE_SIGINT_HANDLER"
+
+
+@contextlib.contextmanager
+def _interrupts_raise() -> Any:
+    """Ctrl-C and SIGTERM raise KeyboardInterrupt while Ray runs the sweep (enter before Ray starts).
+
+    Ray and Tune each replace a handler: ``ray.init`` makes SIGTERM call ``sys.exit`` (and its core
+    logs the signal and aborts the process: exit -6, no message), and ``Tuner.fit``
+    (``ray.tune.tune._setup_signal_catching``) makes SIGINT only end Tune's loop, so ``fit`` returns
+    the unfinished trials and logs a restore hint for a folder this run removes. Here Tune's switch
+    (:data:`TUNE_SIGINT_SWITCH`) keeps Python's Ctrl-C, and :func:`_raise_on_sigterm`, called once
+    Ray has started, puts back SIGTERM -> KeyboardInterrupt. Ray's shutdown
+    (:func:`cv2x_marl.parallel.ray_session`) then stops the trials. The handlers (SIGINT, SIGTERM
+    and the SIGUSR1 Tune also takes) and the switch are put back afterwards.
+    """
+    import os
+    import signal
+    import threading
+
+    previous = os.environ.get(TUNE_SIGINT_SWITCH)
+    main = threading.current_thread() is threading.main_thread()
+    names = ("SIGINT", "SIGTERM", "SIGUSR1")
+    handlers = {getattr(signal, n): signal.getsignal(getattr(signal, n)) for n in names if hasattr(signal, n)}
+    os.environ[TUNE_SIGINT_SWITCH] = "1"
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop(TUNE_SIGINT_SWITCH, None)
+        else:
+            os.environ[TUNE_SIGINT_SWITCH] = previous
+        for sig, handler in handlers.items() if main else ():
+            if handler is not None:
+                signal.signal(sig, handler)
+
+
+def _raise_on_sigterm() -> None:
+    """SIGTERM raises KeyboardInterrupt (as in the CLI), replacing Ray's handler (main thread only)."""
+    import signal
+    import threading
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+
+
 def _run_on_tune(
     specs: list[dict[str, Any]], out_dir: Path, address: str | None, progress: bool
 ) -> list[dict[str, Any]]:
-    with ray_session(address):
+    with _interrupts_raise(), ray_session(address):
+        _raise_on_sigterm()
         from ray import tune
 
         tuner = tune.Tuner(
@@ -209,8 +278,12 @@ def _run_on_tune(
         with contextlib.redirect_stdout(sys.stderr):  # Tune's tables never mix into --json output
             grid = tuner.fit()
         rows = []
+        unfinished = []
         for res in (grid[i] for i in range(len(grid))):
             spec = (res.config or {})["trial"]
+            if not res.error and "timesteps" not in (res.metrics or {}):
+                unfinished.append(spec["name"])  # stopped by Tune before it reported (an interrupt)
+                continue
             row: dict[str, Any] = {
                 "name": spec["name"],
                 "seed": spec["seed"],
@@ -223,6 +296,11 @@ def _run_on_tune(
                 metrics = res.metrics or {}
                 row.update({k: metrics.get(k) for k in (*METRICS, "timesteps", "train_wall_s", "trial_wall_s")})
             rows.append(row)
+    if unfinished:
+        raise SweepInterrupted(
+            f"the sweep was stopped before {len(unfinished)} of {len(specs)} trials finished "
+            f"({', '.join(unfinished[:3])}{', ...' if len(unfinished) > 3 else ''}); nothing of it is kept"
+        )
     order = {s["name"]: i for i, s in enumerate(specs)}
     return sorted(rows, key=lambda r: order[r["name"]])
 
@@ -241,6 +319,7 @@ def _summarise(
     per_point = []
     for point in points:
         done = [r for r in rows if r["config"] == point and r["status"] == "TERMINATED"]
+        done = [r for r in done if r.get("mean_utility_gain") is not None]
         gains = np.array([r["mean_utility_gain"] for r in done], dtype=float)
         per_point.append(
             {

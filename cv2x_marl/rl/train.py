@@ -35,6 +35,16 @@ ENV_IDS = (
     "cv2x/Mobility-v2",
 )
 
+#: the most env copies a run may ask for (``copies``, ``--copies``): each copy holds its own
+#: simulator state (measured about 0.33 MB on the ``paper`` preset, 14 MB on ``highway``) and is
+#: built one after the other, so 4,096 copies already take minutes to build; the default is 8
+MAX_COPIES = 4096
+#: the widest hidden layer of ``ppo.net_arch`` (the networks' memory is estimated as well)
+MAX_LAYER_UNITS = 65_536
+#: Python objects of one env copy besides its simulator arrays (measured: paper 0.33 MB per copy,
+#: of which 0.32 MB are the arrays :func:`estimate_training_memory` counts)
+_COPY_OVERHEAD_BYTES = 100_000
+
 
 @dataclass(frozen=True)
 class PpoConfig:
@@ -73,10 +83,22 @@ class PpoConfig:
             object.__setattr__(self, name, value)
         for name in ("n_steps", "batch_size", "n_epochs"):
             object.__setattr__(self, name, _check_count(f"ppo.{name}", getattr(self, name)))
+        if self.batch_size < 2:  # SB3 normalises the advantages over each mini-batch
+            raise TrainError(
+                f"ppo.batch_size must be an integer >= 2 (PPO normalises the advantages over each "
+                f"mini-batch), got {self.batch_size!r}"
+            )
         arch = self.net_arch
-        if not isinstance(arch, tuple | list) or not arch or not all(is_int(a) and a >= 1 for a in arch):
-            raise TrainError(f"ppo.net_arch must be a non-empty list of integers >= 1, got {arch!r}")
-        object.__setattr__(self, "net_arch", tuple(int(a) for a in arch))
+        rule = f"a non-empty list of integers in [1, {MAX_LAYER_UNITS:,}] (units per hidden layer)"
+        if not isinstance(arch, tuple | list) or not arch:
+            raise TrainError(f"ppo.net_arch must be {rule}, got {arch!r}")
+        try:
+            units = tuple(_check_count("ppo.net_arch", a) for a in arch)
+        except TrainError:
+            raise TrainError(f"ppo.net_arch must be {rule}, got {list(arch)!r}") from None
+        if max(units) > MAX_LAYER_UNITS:
+            raise TrainError(f"ppo.net_arch must be {rule}, got {list(arch)!r}")
+        object.__setattr__(self, "net_arch", units)
 
 
 def _check_count(name: str, value: Any) -> int:
@@ -110,10 +132,21 @@ class TrainConfig:
             raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
         for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
             object.__setattr__(self, name, _check_count(f"train.{name}", getattr(self, name)))
+        if self.copies > MAX_COPIES:
+            raise TrainError(
+                f"train.copies (--copies) must be an integer in [1, {MAX_COPIES:,}] (each copy holds its own "
+                f"simulator, built one after the other), got {self.copies!r}"
+            )
         if not is_int(self.eval_seed) or self.eval_seed < 0:
             raise TrainError(f"train.eval_seed must be an integer >= 0, got {self.eval_seed!r}")
         if not isinstance(self.env, dict):
             raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
+        allowed = env_arguments(self.env_id)
+        bad = sorted(str(k) for k in self.env if k not in allowed)
+        if bad:
+            raise TrainError(
+                f"unknown env argument(s) {bad} in train.env of {self.env_id}; arguments: {', '.join(allowed)}"
+            )
         if self.start_pool is not None:
             object.__setattr__(self, "start_pool", _check_count("train.start_pool", self.start_pool))
 
@@ -128,6 +161,18 @@ class TrainConfig:
         d = dataclasses.asdict(self)
         d["ppo"]["net_arch"] = list(self.ppo.net_arch)
         return d
+
+
+def env_arguments(env_id: str) -> tuple[str, ...]:
+    """The keyword arguments of :class:`~cv2x_marl.env.mobility_env.MobilityEnv` a training
+    config's ``env`` may set: all but ``config`` (a Python object; use ``preset`` and
+    ``overrides``) and, for the ``SingleMover`` ids, ``movers`` (fixed to vehicle 0)."""
+    import inspect
+
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+    skip = {"self", "config"} | ({"movers"} if env_id.startswith("cv2x/SingleMover") else set())
+    return tuple(n for n in inspect.signature(MobilityEnv.__init__).parameters if n not in skip)
 
 
 #: what a run folder's ``train_config.json`` holds besides the configuration
@@ -226,6 +271,180 @@ def make_vec_env(cfg: TrainConfig) -> Any:
     return AgentsVecEnv(lambda: make_eval_env(cfg.env_id, **env), cfg.copies, start_pool=cfg.start_pool)
 
 
+def probe_env(cfg: TrainConfig) -> Any:
+    """One env copy of ``cfg`` (its arguments checked by the env), and the copies it may run as.
+
+    Raises:
+        TrainError: an env argument the env refuses (its message names the argument and the
+            allowed values), or copies that cannot share a process.
+    """
+    from cv2x_marl.env.mobility_env import check_copies
+    from cv2x_marl.experiments.evaluate import make_eval_env
+
+    try:
+        env = make_eval_env(cfg.env_id, **cfg.env_for_training())
+        check_copies(env, cfg.copies)
+    except (ValueError, TypeError) as exc:
+        raise TrainError(f"train.env of {cfg.env_id}: {exc}") from exc
+    return env
+
+
+def _network_parameters(obs_dim: int, act_dim: int, net_arch: tuple[int, ...]) -> int:
+    """Parameters of SB3's MLP actor-critic: separate policy and value networks of ``net_arch``,
+    the action head (with its log std) and the value head."""
+    layers = 0
+    width = obs_dim
+    for units in net_arch:
+        layers += width * units + units
+        width = units
+    return 2 * layers + (width * act_dim + 2 * act_dim) + (width + 1)
+
+
+def estimate_training_memory(cfg: TrainConfig, env: Any) -> dict[str, int]:
+    """Peak memory of a training run, per component, in bytes, from one env copy (:func:`probe_env`).
+
+    * ``env_copies``: ``copies`` x what one copy keeps between episodes: its simulator's pair
+      index, shadowing, snapshot and sensing arrays (:func:`cv2x_marl.sim.memory.estimate_memory_bytes`;
+      measured 0.33 MB per copy on ``paper`` against 0.42 MB estimated, 14.1 MB on ``highway``
+      against 15.6 MB), plus the peak of one reset (copies reset one after the other);
+    * ``start_cache``: with ``start_pool``, the cached starts (pool + evaluation episodes), one copy's
+      arrays each;
+    * ``rollout_buffer``: SB3's buffer, ``n_steps`` x sub-envs x (observation + action + 6 float32),
+      twice (its arrays are flattened into copies before each update);
+    * ``networks``: the policy and value networks' parameters (float32) with their gradients and
+      Adam's two moments, plus a mini-batch's activations (forward and backward).
+    """
+    from cv2x_marl.sim.memory import estimate_memory_bytes
+
+    sim = estimate_memory_bytes(env.config)
+    kept = sum(sim.get(k, 0) for k in ("pair_index", "pair_list", "shadowing", "snapshot", "sensing"))
+    per_copy = kept + _COPY_OVERHEAD_BYTES
+    movers = int(np.count_nonzero(env.mover_mask))
+    agent = env.possible_agents[int(np.flatnonzero(env.mover_mask)[0])]
+    obs_dim = int(np.prod(env.observation_space(agent).shape))
+    act_dim = int(np.prod(env.action_space(agent).shape))
+    n_envs = cfg.copies * movers
+    buffer_rows = cfg.ppo.n_steps * n_envs
+    params = _network_parameters(obs_dim, act_dim, cfg.ppo.net_arch)
+    batch = min(cfg.ppo.batch_size, buffer_rows)
+    activations = batch * (obs_dim + sum(cfg.ppo.net_arch)) * 4 * 2 * 3
+    cached = (cfg.start_pool + cfg.eval_episodes) if cfg.start_pool is not None else 0
+    est = {
+        "env_copies": cfg.copies * per_copy + int(sim["total"]),
+        "start_cache": cached * per_copy,
+        "rollout_buffer": 2 * buffer_rows * (obs_dim + act_dim + 6) * 4,
+        "networks": params * 4 * 4 + activations,
+        "per_copy": per_copy,
+        "sub_envs": n_envs,
+        "obs_dim": obs_dim,
+    }
+    est["total"] = est["env_copies"] + est["start_cache"] + est["rollout_buffer"] + est["networks"]
+    return est
+
+
+def check_training_memory(cfg: TrainConfig, env: Any, limit_bytes: int | None = None) -> dict[str, int]:
+    """Refuse a training configuration whose estimated memory (:func:`estimate_training_memory`)
+    exceeds the limit, before anything is allocated.
+
+    Args:
+        cfg: the configuration.
+        env: one env copy of it (:func:`probe_env`).
+        limit_bytes: the limit; None: ``CV2X_MARL_MEMORY_LIMIT_GB`` (GB) when set, else the memory
+            available now (as for the simulator, :func:`cv2x_marl.sim.memory.check_memory`).
+
+    Raises:
+        TrainError: the estimate exceeds the limit; the message gives the figures, largest first,
+            each with the key that sets it.
+    """
+    from cv2x_marl.sim import memory
+
+    est = estimate_training_memory(cfg, env)
+    source = "limit_bytes"
+    if limit_bytes is None:
+        try:
+            limit_bytes = memory._env_limit_bytes()  # the simulator's limit variable, checked the same way
+        except ValueError as exc:
+            raise TrainError(str(exc)) from exc
+        source = memory.ENV_LIMIT
+    if limit_bytes is None:
+        if est["total"] <= memory.QUICK_PASS_BYTES:
+            return est
+        limit_bytes = memory.available_memory_bytes()
+        source = "memory available now, MemAvailable"
+    if est["total"] <= limit_bytes:
+        return est
+    parts = {
+        "env_copies": f"train.copies={cfg.copies} env copies x {_gb(est['per_copy'])} each (plus one reset)",
+        "start_cache": f"train.start_pool={cfg.start_pool} + train.eval_episodes={cfg.eval_episodes} cached starts",
+        "rollout_buffer": (
+            f"rollout buffer: ppo.n_steps={cfg.ppo.n_steps} x {est['sub_envs']:,} sub-envs (train.copies x movers) "
+            f"x {est['obs_dim']} observation floats"
+        ),
+        "networks": f"networks: ppo.net_arch={list(cfg.ppo.net_arch)} (weights, gradients, Adam moments)",
+    }
+    ranked = sorted((k for k in parts if est[k] > 0), key=lambda k: -est[k])
+    detail = "; ".join(f"{parts[k]}: {_gb(est[k])}" for k in ranked)
+    raise TrainError(
+        f"training needs an estimated {_gb(est['total'])} of memory, more than the {_gb(limit_bytes)} allowed "
+        f"({source}): {detail}; reduce the first of these (or set {memory.ENV_LIMIT})"
+    )
+
+
+def _gb(n_bytes: float) -> str:
+    gb = n_bytes / 1e9
+    if gb >= 100:
+        return f"{gb:,.0f} GB"
+    return f"{gb:.3g} GB" if gb >= 0.01 else f"{n_bytes / 1e6:.3g} MB"
+
+
+def check_training_config(cfg: TrainConfig) -> dict[str, int]:
+    """Everything about ``cfg`` that can be checked without training: the env arguments (one env
+    copy is built), SB3's size rules, and the memory estimate (:func:`check_training_memory`).
+
+    Returns:
+        The memory estimate.
+
+    Raises:
+        TrainError: naming the key at fault.
+    """
+    env = probe_env(cfg)
+    try:
+        est = check_training_memory(cfg, env)
+    finally:
+        env.close()
+    if cfg.ppo.n_steps * est["sub_envs"] < 2:  # SB3: advantages normalised over the rollout
+        raise TrainError(
+            f"ppo.n_steps x sub-envs (train.copies x movers) must be >= 2, got {cfg.ppo.n_steps} x {est['sub_envs']}"
+        )
+    return est
+
+
+def build_training(cfg: TrainConfig, seed: int, tensorboard_log: str | None = None) -> tuple[Any, Any]:
+    """Check ``cfg`` (:func:`check_training_config`) and build its VecEnv and a fresh PPO model:
+    everything that can fail on a bad configuration, done before a run folder is touched.
+
+    Returns:
+        ``(vec_env, model)``; the caller closes the VecEnv.
+
+    Raises:
+        TrainError: a bad configuration, naming the key.
+    """
+    check_training_config(cfg)
+    try:
+        vec = make_vec_env(cfg)
+    except (ValueError, TypeError) as exc:
+        raise TrainError(f"train.env of {cfg.env_id}: {exc}") from exc
+    try:
+        model = make_ppo(vec, cfg.ppo, seed, tensorboard_log)
+    except (AssertionError, ValueError, TypeError) as exc:
+        vec.close()
+        raise TrainError(f"train.ppo: stable-baselines3 refuses the PPO settings: {exc}") from exc
+    except BaseException:
+        vec.close()
+        raise
+    return vec, model
+
+
 def latest_checkpoint(run_dir: Path) -> Path | None:
     """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
     ckpts = list((Path(run_dir) / "checkpoints").glob("ppo_*_steps.zip"))
@@ -245,6 +464,10 @@ class _StopRequest:
 
     def __init__(self) -> None:
         self.signal: int | None = None
+        #: steps the policy has been updated on: the count when the current rollout started
+        self.trained_steps = 0
+        #: whether the signal cut a rollout short (its steps were collected but never trained on)
+        self.cut = False
         self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> _StopRequest:
@@ -330,8 +553,20 @@ def _callbacks(
             return True
 
     class StopOnSignal(BaseCallback):
+        """Ends ``model.learn()`` cleanly at the next step after a signal, and keeps count of the
+        steps trained on (a rollout is trained on once it is complete, before the next starts)."""
+
+        def _on_training_start(self) -> None:
+            stop.trained_steps = self.num_timesteps
+
+        def _on_rollout_start(self) -> None:
+            stop.trained_steps = self.num_timesteps
+
         def _on_step(self) -> bool:
-            return stop.signal is None  # False ends model.learn() cleanly
+            if stop.signal is None:
+                return True
+            stop.cut = True
+            return False
 
     class Progress(BaseCallback):
         def _on_training_start(self) -> None:
@@ -384,6 +619,19 @@ def write_eval_rows(path: Path, rows: list[dict[str, Any]]) -> None:
     atomic_write(path, write)
 
 
+def rollout_steps(cfg: TrainConfig, n_envs: int) -> int:
+    """Agent-steps of one PPO rollout: ``ppo.n_steps`` x sub-envs. Training advances in whole
+    rollouts, so every segment of a run (fresh or resumed) starts at a multiple of it."""
+    return cfg.ppo.n_steps * n_envs
+
+
+def trained_steps(steps: int, rollout: int) -> int:
+    """The steps a checkpoint saved at ``steps`` was trained on: back to the start of its rollout
+    (a checkpoint written during a rollout, or at an interrupt, holds the policy of the last update;
+    the steps collected since were never trained on and are collected again on resume)."""
+    return int(steps) - int(steps) % int(rollout)
+
+
 def train(
     cfg: TrainConfig,
     timesteps: int,
@@ -395,14 +643,19 @@ def train(
 ) -> dict[str, Any]:
     """Train (or resume) a shared PPO policy; write the run folder; return the training record.
 
-    The run folder (:class:`cv2x_marl.runs.RunFolder`) is locked while training and keeps its
-    checkpoints if training fails. SIGINT/SIGTERM stop training at the next step, save a
-    checkpoint and raise :class:`TrainingInterrupted` (``resume=True`` continues). With
-    ``resume`` training continues from the newest checkpoint, and ``eval.csv`` is cut back to it.
+    Everything a bad configuration can break (the env arguments, SB3's rules, the memory
+    estimate, building the VecEnv and the PPO model: :func:`build_training`) runs before the run
+    folder is touched, so a refused run leaves ``run_dir`` as it was. The run folder
+    (:class:`cv2x_marl.runs.RunFolder`) is locked while training and keeps its checkpoints if
+    training fails. SIGINT/SIGTERM stop training at the next step, save a checkpoint of the steps
+    trained on (the unfinished rollout is not counted) and raise :class:`TrainingInterrupted`
+    (``resume=True`` continues). With ``resume`` training continues from the newest checkpoint, at
+    the steps it was trained on (:func:`trained_steps`), and ``eval.csv`` is cut back to them: the
+    step count, the evaluation rows and the checkpoint names then equal those of an uninterrupted run.
 
     Raises:
-        TrainError: bad arguments, a resume whose configuration differs, or a run that already
-            has ``timesteps`` steps.
+        TrainError: bad arguments or configuration, a resume whose configuration differs, or a
+            run that already has ``timesteps`` steps.
         cv2x_marl.runs.RunFolderError: the folder is in use, not empty (without ``overwrite`` or
             ``resume``) or not writable.
     """
@@ -419,21 +672,33 @@ def train(
         cfg_path = run_dir / "train_config.json"
         if not cfg_path.exists():
             raise TrainError(f"--resume: {run_dir} has no train_config.json (nothing to resume)")
-        old = json.loads(cfg_path.read_text())
-        if {k: v for k, v in old.items() if k != "timesteps"} != {
+        try:
+            old = json.loads(cfg_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise TrainError(f"--resume: cannot read {cfg_path}: {exc}") from exc
+        if not isinstance(old, dict) or {k: v for k, v in old.items() if k != "timesteps"} != {
             k: v for k, v in resolved.items() if k != "timesteps"
         }:
             raise TrainError(f"--resume: the configuration or seed differs from the one in {cfg_path}")
-        ckpt = latest_checkpoint(run_dir)
-        done = int(ckpt.stem.split("_")[1]) if ckpt is not None else 0
-        if done >= timesteps:
-            raise TrainError(
-                f"--resume: {run_dir} already has {done} steps (>= --timesteps {timesteps}); "
-                "ask for more steps to continue it (its model.zip is kept as it is)"
-            )
-    params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps}
-    with RunFolder(run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params):
-        return _train(cfg, timesteps, seed, run_dir, resolved, resume, progress)
+    import torch
+
+    torch.set_num_threads(1)
+    vec, model = build_training(cfg, seed, str(run_dir / "tb"))
+    try:
+        rollout = rollout_steps(cfg, vec.num_envs)
+        if resume:
+            ckpt = latest_checkpoint(run_dir)
+            done = trained_steps(int(ckpt.stem.split("_")[1]), rollout) if ckpt is not None else 0
+            if done >= timesteps:
+                raise TrainError(
+                    f"--resume: {run_dir} already has {done} steps (>= --timesteps {timesteps}); "
+                    "ask for more steps to continue it (its model.zip is kept as it is)"
+                )
+        params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps}
+        with RunFolder(run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params):
+            return _train(cfg, timesteps, seed, run_dir, resolved, resume, progress, vec, model, rollout)
+    finally:
+        vec.close()
 
 
 def _train(
@@ -444,22 +709,23 @@ def _train(
     resolved: dict[str, Any],
     resume: bool,
     progress: bool,
+    vec: Any,
+    model: Any,
+    rollout: int,
 ) -> dict[str, Any]:
     import torch
     from stable_baselines3 import PPO
 
     write_json(run_dir / "train_config.json", resolved)
-    vec = make_vec_env(cfg)
-    torch.set_num_threads(1)
     ckpt = latest_checkpoint(run_dir) if resume else None
     if ckpt is not None:
         model = PPO.load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
+        # continue from the steps trained on: a checkpoint written during a rollout counts steps
+        # that were collected but never trained on
+        model.num_timesteps = trained_steps(model.num_timesteps, rollout)
         model.set_random_seed(seed + model.num_timesteps)
-        # the learning curve goes back to the checkpoint: rows of a discarded segment are dropped
-        rows = read_eval_rows(run_dir / "eval.csv")
-        write_eval_rows(run_dir / "eval.csv", [r for r in rows if int(r["timesteps"]) <= model.num_timesteps])
-    else:
-        model = make_ppo(vec, cfg.ppo, seed, str(run_dir / "tb"))
+    if resume:  # the learning curve goes back to the checkpoint (to nothing without one): rows of a lost segment go
+        _cut_back(run_dir, model.num_timesteps, checkpoints=False)
     start = model.num_timesteps
     remaining = max(0, timesteps - start)
     t0 = time.perf_counter()
@@ -471,13 +737,19 @@ def _train(
             tb_log_name="ppo",
         )
         wall = time.perf_counter() - t0
+        if stop.signal is not None and stop.cut:
+            # the rollout the signal cut short was never trained on: not counted, so --resume
+            # collects it again and ends where an uninterrupted run ends
+            cut = model.num_timesteps - stop.trained_steps
+            model.num_timesteps = stop.trained_steps
+            _cut_back(run_dir, model.num_timesteps, checkpoints=True)
         # the final state is a checkpoint too: short runs and interrupted runs can be resumed
         save_model(model, checkpoint_path(run_dir, model.num_timesteps))
         if stop.signal is not None:
-            vec.close()
+            not_counted = f" (the {cut} steps of the unfinished rollout are not counted)" if stop.cut else ""
             raise TrainingInterrupted(
-                f"training stopped at {model.num_timesteps} steps; checkpoint saved in {run_dir / 'checkpoints'} "
-                "(continue with --resume)"
+                f"training stopped at {model.num_timesteps} steps{not_counted}; checkpoint saved in "
+                f"{run_dir / 'checkpoints'} (continue with --resume)"
             )
     save_model(model, run_dir / "model.zip")
     from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
@@ -497,8 +769,19 @@ def _train(
         "torch": torch.__version__,
     }
     write_json(run_dir / "record.json", record)
-    vec.close()
     return record
+
+
+def _cut_back(run_dir: Path, steps: int, checkpoints: bool) -> None:
+    """Drop the learning-curve rows (and with ``checkpoints`` the checkpoints) after ``steps``."""
+    rows = read_eval_rows(run_dir / "eval.csv")
+    kept = [r for r in rows if int(r["timesteps"]) <= steps]
+    if len(kept) != len(rows):
+        write_eval_rows(run_dir / "eval.csv", kept)
+    if checkpoints:
+        for path in (run_dir / "checkpoints").glob("ppo_*_steps.zip"):
+            if int(path.stem.split("_")[1]) > steps:
+                path.unlink()
 
 
 def parameters_digest(model: Any) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import pyarrow.parquet as pq
 import pytest
@@ -82,3 +83,134 @@ def test_dataset_on_ray_equals_the_serial_dataset(tmp_path: Path) -> None:
     a = pq.read_table(tmp_path / "serial" / "samples.parquet")
     b = pq.read_table(tmp_path / "ray" / "samples.parquet")
     assert a.num_rows > 1000 and a.equals(b)
+
+
+# -- issue 25, defect 9: Ctrl-C during a sweep stops it cleanly -------------------------------------
+
+
+class _FakeResult:
+    def __init__(self, spec: dict[str, Any], metrics: dict[str, Any] | None) -> None:
+        self.config = {"trial": spec}
+        self.error = None
+        self.metrics = metrics
+
+
+def _fake_tune(monkeypatch: pytest.MonkeyPatch, fit: Any) -> None:
+    """Replace Ray (session and Tuner) by ``fit(specs) -> results``: the sweep logic around Tune,
+    without starting Ray (the session sets the SIGTERM handler ``ray.init`` sets)."""
+    import contextlib
+    import sys
+
+    from ray import tune
+
+    import cv2x_marl.rl.sweep as sweep
+
+    @contextlib.contextmanager
+    def ray_session(address: str | None) -> Any:
+        import signal
+
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))  # as ray.init does
+        yield
+
+    class Tuner:
+        def __init__(self, trainable: Any, param_space: dict[str, Any], run_config: Any) -> None:
+            self.specs = param_space["trial"]["grid_search"]
+
+        def fit(self) -> list[_FakeResult]:
+            return fit(self.specs)
+
+    monkeypatch.setattr(sweep, "ray_session", ray_session)
+    monkeypatch.setattr(tune, "Tuner", Tuner)
+    monkeypatch.setattr(tune, "with_resources", lambda trainable, resources: trainable)
+
+
+def _plots(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    import cv2x_marl.plotting as plotting
+
+    calls: list[Any] = []
+    monkeypatch.setattr(plotting, "plot_sweep", lambda *a: calls.append(a))
+    return calls
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_or_sigterm_during_a_sweep_raises_and_rolls_the_folder_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], signame: str
+) -> None:
+    """Tune's own SIGINT handler (installed by ``tune.run``, which only ends its loop and returns
+    the unfinished trials) is switched off during the sweep: Ctrl-C raises at once; so does SIGTERM
+    (``ray.init`` made it ``sys.exit``, and Ray's core aborted the process: exit -6)."""
+    import os
+    import signal
+    import time
+
+    from ray.tune.tune import _setup_signal_catching
+
+    def fit(specs: list[dict[str, Any]]) -> list[_FakeResult]:
+        tune_stopped = _setup_signal_catching()  # what Tuner.fit does first
+        os.kill(os.getpid(), getattr(signal, signame))
+        time.sleep(1.0)  # a Tune step; Python runs the handler here
+        raise AssertionError(f"{signame} did not raise (Tune caught it: {tune_stopped.is_set()})")
+
+    _fake_tune(monkeypatch, fit)
+    plots = _plots(monkeypatch)
+    cfg_file = tmp_path / "tiny.yaml"
+    cfg_file.write_text(TINY)
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--config", str(cfg_file), "--seeds", "0,1", "--timesteps", "64", "--out", str(out)]
+    assert main([*argv, "--quiet"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not out.exists() and plots == []
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handler before the CLI's, put back by main
+
+
+def test_a_sweep_whose_trials_tune_stopped_is_an_interrupt_not_a_plot(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Tune stopped before a trial reported (SIGUSR1, or a Ctrl-C Tune caught): no summary with
+    None metrics, no plot (it used to raise TypeError: int * NoneType), the folder rolled back."""
+
+    def fit(specs: list[dict[str, Any]]) -> list[_FakeResult]:
+        done = {"mean_utility_gain": 0.01, "effectiveness": 0.5, "timesteps": 64}
+        return [_FakeResult(specs[0], done), _FakeResult(specs[1], {})]
+
+    _fake_tune(monkeypatch, fit)
+    plots = _plots(monkeypatch)
+    cfg_file = tmp_path / "tiny.yaml"
+    cfg_file.write_text(TINY)
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--config", str(cfg_file), "--seeds", "0,1", "--timesteps", "64", "--out", str(out)]
+    assert main([*argv, "--quiet"]) == 130
+    err = capsys.readouterr().err
+    assert "stopped before 1 of 2 trials finished (seed1_base)" in err
+    assert not out.exists() and plots == []
+
+
+def test_plot_sweep_draws_points_whose_trials_failed(tmp_path: Path) -> None:
+    from cv2x_marl.plotting import plot_sweep
+
+    trials = [
+        {"config": {"copies": 2}, "status": "TERMINATED", "mean_utility_gain": 0.02},
+        {"config": {"copies": 2}, "status": "TERMINATED", "mean_utility_gain": None},
+        {"config": {"copies": 4}, "status": "ERROR", "mean_utility_gain": None},
+    ]
+    points = [
+        {"config": {"copies": 2}, "label": "copies=2", "mean_utility_gain": 0.02, "std_utility_gain": None},
+        {"config": {"copies": 4}, "label": "copies=4", "mean_utility_gain": None, "std_utility_gain": None},
+    ]
+    result = {"trials": trials, "points": points, "seeds": [0, 1], "timesteps": 64, "eval_episodes": 2, "eval_seed": 1}
+    path = plot_sweep(result, tmp_path / "sweep.png")
+    assert path.stat().st_size > 1000
+
+
+def test_a_bad_grid_point_is_refused_before_the_sweep_folder_exists(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg_file = tmp_path / "tiny.yaml"
+    cfg_file.write_text(TINY)
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--config", str(cfg_file), "--grid", "env.max_step_m=5,-5", "--out", str(out), "--quiet"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "grid point env.max_step_m=-5" in err and "max_step_m" in err
+    assert not out.exists()
