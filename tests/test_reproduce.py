@@ -104,9 +104,9 @@ def test_reproduce_refuses_missing_models_before_writing(
 
 
 def test_check_models_finds_both_envs_or_none_on_request(tmp_path: Path) -> None:
-    from cv2x_marl.experiments.reproduce import check_models
-
     import importlib.util
+
+    from cv2x_marl.experiments.reproduce import check_models
 
     if importlib.util.find_spec("stable_baselines3") is None:  # check_models asks for the extra
         pytest.skip("stable-baselines3 (the train extra) is not installed")

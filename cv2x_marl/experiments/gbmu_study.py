@@ -486,6 +486,8 @@ def run_study(
         raise ValueError(f"unknown case {case!r}; cases: {', '.join(CASES)}")
     if judge not in JUDGES:
         raise ValueError(f"unknown judge {judge!r}; judges: {', '.join(JUDGES)}")
+    if not methods:
+        raise ValueError(f"--methods names no method; methods: {', '.join(ALL_METHODS)}")
     bad = [m for m in methods if m not in ALL_METHODS]
     if bad:
         raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(ALL_METHODS)}")
