@@ -371,13 +371,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from cv2x_marl.experiments.reproduce import reproduce
+    from cv2x_marl.experiments.reproduce import NO_MODELS, reproduce
 
     report = reproduce(
         args.out,
         quick=args.quick,
         seed=args.seed,
-        models_dir=args.models,
+        models_dir=None if str(args.models) == NO_MODELS else args.models,
         progress=not args.quiet,
         overwrite=args.overwrite,
     )
@@ -420,9 +420,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
     from cv2x_marl.runs import run_folder
-    from cv2x_marl.sim.sumo import export_scenario
+    from cv2x_marl.sim.sumo import export_scenario, export_seconds
 
     cfg = _scenario(args)
+    export_seconds(cfg, args.seconds)  # the trace's size, refused before the folder is touched
     params = {"seed": args.seed, "seconds": args.seconds, "parquet": args.parquet}
     with run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
         summary = export_scenario(cfg, args.seed, args.out, args.seconds, args.parquet)
@@ -571,12 +572,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"
     )
-    p.add_argument("--episodes", type=COUNT, default=144)
+    p.add_argument(
+        "--episodes",
+        type=COUNT,
+        default=144,
+        help="held-out episodes; episodes x movers at most 1,000,000 (the per-mover rows stay in memory)",
+    )
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--preset", default="paper", choices=sorted([*PRESETS, *PRESET_ALIASES]))
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
-    p.add_argument("--max-cycles", type=COUNT, default=100, help="steps per episode")
-    p.add_argument("--max-step", type=POSITIVE_FLOAT, default=5.0, help="offset of a full action (m)")
+    p.add_argument(
+        "--max-cycles", type=COUNT, default=100, help="steps per episode (the env's max_cycles, at most 10,000)"
+    )
+    p.add_argument(
+        "--max-step",
+        type=POSITIVE_FLOAT,
+        default=5.0,
+        help="offset of a full action (m; the env's max_step_m): at most the scene's diagonal, and -v1/-v2 envs "
+        "refuse a reachable square (2 x max-cycles x max-step wide) whose 20 m plan grid exceeds 4,000,000 points",
+    )
     p.add_argument(
         "--replan-every",
         type=COUNT,
@@ -645,7 +659,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--quick", action="store_true", help="smaller settings: about four minutes on 2 cores")
     p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--models", type=Path, default=Path("agents/models"), help="folder of shipped PPO models")
+    p.add_argument(
+        "--models",
+        type=Path,
+        default=Path("agents/models"),
+        help="folder of the PPO models, single_seed<N>/model.zip and multi_seed<N>/model.zip (checked before "
+        "anything runs); none: no PPO rows",
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_reproduce)
 
@@ -674,7 +694,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--seconds",
         type=POSITIVE_FLOAT,
         default=None,
-        help="SUMO seconds of FCD trace (default: sim.warmup_subframes + sim.n_subframes, plus 60 s)",
+        help="SUMO seconds of FCD trace (default: sim.warmup_subframes + sim.n_subframes, plus 60 s); at most "
+        "what keeps the trace within 10,000,000 rows (vehicles x SUMO steps; 47,619 s for 21 vehicles at 0.1 s)",
     )
     p.add_argument("--parquet", action="store_true", help="also write the trace as fcd.parquet")
     p.add_argument("--out", type=Path, required=True, help="output folder")

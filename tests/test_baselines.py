@@ -51,6 +51,8 @@ def test_the_results_table_is_current() -> None:
         ("policy: gbmu\nstep_schedule: decay\ndecay_k0: 0\n", "decay_k0 must be a finite number > 0"),
         ("policy: gbmu\ndecay_k0: .inf\n", "decay_k0"),
         ("policy: gbmu\nmodel: 3\n", "model must be paper-table2, linear-fit, logistic-fit or a model file"),
+        ("policy: gbmu\nmodel: nowhere/model.json\n", "model 'nowhere/model.json': model file .* does not exist"),
+        ("policy: sensing\nmodel: nowhere.json\n", "model 'nowhere.json': model file .* does not exist"),
     ],
 )
 def test_bad_baseline_files_are_refused_by_name(tmp_path: Path, text: str, culprit: str) -> None:

@@ -40,6 +40,9 @@ ACTION_MODES = ("offset", "plan_residual")
 TRAFFIC_ACTIONS = ("offset", "speed")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
+#: most steps per episode (``max_cycles``): 100 times the default; the reachable square, the tracks and
+#: the run time grow with it (an episode of traffic mode simulates ``max_cycles`` SPS periods)
+MAX_CYCLES = 10_000
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -65,13 +68,19 @@ class MobilityEnv(ParallelEnv):
     Args:
         preset: scenario preset (``paper``: the paper's 21-vehicle grid; ``highway``: the TR 36.885 highway
             with the standard's Mode 4 procedures; ``highway-legacy``: with the paper's simplified ones).
-        overrides: ``section.key=value`` strings applied to the preset.
+        overrides: ``section.key=value`` strings applied to the preset (a single string is one
+            assignment); anything else is refused naming ``overrides``.
         config: a full :class:`ScenarioConfig` (takes precedence over preset/overrides).
         mode: ``snapshot`` (positions and SPS resources of a stage-1 snapshot; only the agents'
             offsets move the vehicles) or ``traffic`` (vehicles drive, SPS runs one period per
             step, agents add bounded offsets to their road positions).
-        max_cycles: steps per episode (truncation, all agents together).
-        max_step_m: offset of a full action (actions are ``Box(-1, 1, (2,))`` times this).
+        max_cycles: steps per episode (truncation, all agents together), 1 .. :data:`MAX_CYCLES`.
+        max_step_m: offset of a full action (actions are ``Box(-1, 1, (2,))`` times this); at most the
+            diagonal of the scene (the road box: 636.4 m for ``paper``, 2000.1 m for ``highway``). With
+            observation >= 1 in snapshot mode the plan searches the reachable square (``2 x max_cycles x
+            max_step_m`` wide, unless ``max_drift_m`` or ``roi`` bound it) on a 20 m grid, which must fit
+            :data:`~cv2x_marl.policies.optimum.MAX_GRID_POINTS` (``max_step_m`` up to 199.9 m with 100
+            steps); larger ones are refused with the figure.
         movers: indices of the vehicles whose actions move them (None: all); the others stay put.
         reward: ``individual`` (own eq. 12 utility), ``team`` (mean over agents) or ``mixed``
             (``local_ratio`` individual + ``1 - local_ratio`` team).
@@ -141,10 +150,23 @@ class MobilityEnv(ParallelEnv):
         reset_cache: int = 0,
         traffic_action: str = "offset",
     ) -> None:
+        if isinstance(overrides, str):  # one assignment, not its characters
+            overrides = [overrides]
+        _check(
+            "overrides",
+            isinstance(overrides, Sequence) and all(isinstance(o, str) for o in overrides),
+            "a section.key=value string or a list of them",
+            overrides,
+        )
         cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
         _check("mode", mode in MODES, " | ".join(MODES), mode)
         _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
-        _check("max_cycles", is_int(max_cycles) and max_cycles >= 1, "integer >= 1", max_cycles)
+        _check(
+            "max_cycles",
+            is_int(max_cycles) and 1 <= max_cycles <= MAX_CYCLES,
+            f"integer in [1, {MAX_CYCLES}]",
+            max_cycles,
+        )
         _check("max_step_m", is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
         _check("local_ratio", is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
         _check("p_min", is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
@@ -236,6 +258,14 @@ class MobilityEnv(ParallelEnv):
         self._geometry: PairGeometry | None = None
         box = road.box_m
         self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
+        scene_m = float(np.hypot(*self.box_m))
+        _check(
+            "max_step_m",
+            self.max_step_m <= scene_m,
+            f"finite number > 0 and <= {scene_m:.1f} (the diagonal of the scene, road box "
+            f"{self.box_m[0]:g} m x {self.box_m[1]:g} m: a larger step leaves it)",
+            max_step_m,
+        )
         self.layout = ObservationLayout(
             n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
         )
@@ -267,6 +297,15 @@ class MobilityEnv(ParallelEnv):
                 self.model = load_model(Path(model))
             except Exception as exc:
                 raise ValueError(f"invalid env argument model={model!r}: {exc}") from exc
+        if self.layout.version >= 1 and mode == "snapshot":  # the plan's search, refused before any reset
+            from cv2x_marl.policies.optimum import PLAN_GRID_M, SearchGridError, check_reach_grid
+
+            try:
+                check_reach_grid(self, PLAN_GRID_M, f"observation version {self.layout.version}'s plan")
+            except SearchGridError as exc:
+                raise SearchGridError(
+                    f"invalid env arguments max_cycles={max_cycles!r}, max_step_m={max_step_m!r}: {exc}"
+                ) from None
         _check("reset_cache", is_int(reset_cache) and reset_cache >= 0, "an integer >= 0", reset_cache)
         _check("reset_cache", reset_cache == 0 or mode == "snapshot", "0 unless mode is snapshot", reset_cache)
         #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`

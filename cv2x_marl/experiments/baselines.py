@@ -40,6 +40,8 @@ KEYS = ("policy", "model", "delta", "step_schedule", "decay_k0", "env_id", "env"
 SHIPPED_MODELS = ("linear-fit", "logistic-fit")
 #: the policies that take a step schedule
 SCHEDULED = ("gbmu", "greedy")
+#: the policies that read the two-distance model of their file
+MODELLED = ("gbmu", "greedy", "planner", "sensing")
 
 
 def resolve_model(model: str) -> str:
@@ -126,6 +128,13 @@ def load_baseline(path: str | Path) -> Baseline:
             f"baseline file {path}: model must be paper-table2, {', '.join(SHIPPED_MODELS)} or a model file, "
             f"got {model!r}"
         )
+    if policy in MODELLED:  # the model is read now, so a missing one names this file too
+        from cv2x_marl.experiments.dataset import load_model
+
+        try:
+            load_model(resolve_model(model))
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"baseline file {path}: model {model!r}: {exc}") from None
     schedule = data.get("step_schedule", "constant")
     if schedule not in SCHEDULES:
         raise ValueError(f"baseline file {path}: step_schedule must be one of {', '.join(SCHEDULES)}, got {schedule!r}")

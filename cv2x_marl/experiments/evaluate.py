@@ -10,15 +10,16 @@ from __future__ import annotations
 import csv
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from cv2x_marl.checks import is_int
 from cv2x_marl.env.mobility_env import MobilityEnv
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import BatchPolicy, Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import check_file, run_folder
 
 ENV_IDS = (
@@ -29,6 +30,34 @@ ENV_IDS = (
     "cv2x/Mobility-v2",
     "cv2x/SingleMover-v2",
 )
+
+
+#: most per-mover rows (episodes x movers) one evaluation keeps: they stay in memory for the summary
+#: and ``episodes.csv``, about :data:`ROW_BYTES` each, so about 1 GB at the limit
+MAX_ROWS = 1_000_000
+#: memory of one per-mover row (a dict of 12 values: 752 bytes measured, rounded up for the summary's arrays)
+ROW_BYTES = 1_000
+
+
+def episode_seeds(seed: int, n: int) -> Iterator[int]:
+    """The seeds :func:`~cv2x_marl.rng.derive_seeds` gives, one at a time (the children of one
+    ``SeedSequence`` are spawned in order, so they are the same values) without holding ``n`` of them."""
+    root = np.random.SeedSequence(int(seed))
+    for _ in range(n):
+        yield int(root.spawn(1)[0].generate_state(1)[0])
+
+
+def check_episodes(episodes: int, movers: int) -> None:
+    """Refuse an evaluation whose per-mover rows (``episodes x movers``) exceed :data:`MAX_ROWS`."""
+    if not is_int(episodes) or episodes < 1:
+        raise ValueError(f"--episodes must be an integer >= 1, got {episodes!r}")
+    rows = int(episodes) * movers
+    if rows > MAX_ROWS:
+        raise ValueError(
+            f"--episodes {episodes:,} x {movers} mover(s) would keep {rows:,} per-mover rows in memory (about "
+            f"{rows * ROW_BYTES / 1e9:,.1f} GB at {ROW_BYTES:,} bytes each), above the limit of {MAX_ROWS:,} rows; "
+            f"lower --episodes to at most {MAX_ROWS // movers:,} for this env"
+        )
 
 
 def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
@@ -168,6 +197,10 @@ def evaluate(
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns.
 
+    ``episodes x`` the env's movers is at most :data:`MAX_ROWS` (the per-mover rows stay in memory);
+    larger counts, and an optimum search (``vs_optimum``, ``optimum``) too large for
+    :data:`~cv2x_marl.policies.optimum.MAX_GRID_POINTS`, are refused before ``out_dir`` is touched.
+
     Args:
         env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on or a baseline
             file names, else ``cv2x/SingleMover-v2``.
@@ -185,8 +218,7 @@ def evaluate(
 
     from cv2x_marl.experiments.baselines import is_baseline_file, load_baseline, make_baseline_policy
 
-    if episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    check_episodes(episodes, 1)  # the count itself; with the env's movers below
     env_kwargs = dict(env_kwargs or {})
     spec = None
     if isinstance(policy_spec, str) and is_baseline_file(policy_spec):  # baselines/NAME.yaml
@@ -207,15 +239,27 @@ def evaluate(
     else:
         policy = policy_spec
         policy_spec = policy.name
+    movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
+    check_episodes(episodes, len(movers))
+    if vs_optimum:  # its search is refused here, before the run folder, when too large
+        from cv2x_marl.policies.optimum import OptimumPolicy
+
+        OptimumPolicy(env)
     params = {"env_id": env_id, "policy": str(policy_spec), "episodes": episodes, "seed": seed}
     with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params):
-        movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
         zero = np.zeros(2, dtype=np.float32)
         rows: list[dict[str, Any]] = []
         t0 = time.perf_counter()
         steps = 0
         for ep, ep_seed in enumerate(
-            tqdm(derive_seeds(seed, episodes), desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+            tqdm(
+                episode_seeds(seed, episodes),
+                total=episodes,
+                desc=policy.name,
+                unit="ep",
+                file=sys.stderr,
+                disable=not progress,
+            )
         ):
             obs, infos = env.reset(seed=ep_seed)
             policy.reset(ep_seed)

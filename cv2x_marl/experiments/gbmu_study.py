@@ -56,6 +56,59 @@ VARIANT_MODEL = "logistic-fit"
 #: the step schedule of the ``-schedule`` variants (and of ``baselines/gbmu-schedule.yaml``)
 VARIANT_SCHEDULE = StepSchedule("backtracking")
 
+#: most memory the realisations of one study may hold (snapshots, links, trajectories), bytes
+MAX_STUDY_BYTES = 2_000_000_000
+#: memory per realisation: bytes per vehicle pair of its snapshot (shadowing, LOS, links: 9.3 measured on
+#: highway), a fixed part (positions, resources: 4 kB measured on paper) and bytes per recorded
+#: iteration of each method (trajectory and utility curve)
+STUDY_PAIR_BYTES, STUDY_FIXED_BYTES, STUDY_RECORD_BYTES = 10, 4_096, 24
+
+
+def record_interval(case: str, iterations: int) -> int:
+    """Iterations between two recorded points of the climbs (about 100 per climb in the realizations case)."""
+    return max(1, iterations // 1000) if case != "realizations" else max(1, iterations // 100)
+
+
+def study_bytes(cfg: ScenarioConfig, realizations: int, iterations: int, n_methods: int) -> tuple[int, int]:
+    """Estimated memory of a realizations study: ``(total, per realisation)`` bytes."""
+    n = cfg.n_vehicles
+    records = iterations // record_interval("realizations", iterations) + 2
+    per = n * n * STUDY_PAIR_BYTES + STUDY_FIXED_BYTES + n_methods * records * STUDY_RECORD_BYTES
+    return realizations * per, per
+
+
+def scene_diagonal_m(cfg: ScenarioConfig) -> tuple[float, str]:
+    """The diagonal of the scenario's road box (m) and the box in words."""
+    from cv2x_marl.sim.road import Road
+
+    box = np.asarray(Road.from_config(cfg.road).box_m, dtype=np.float64)
+    box = np.where(np.isfinite(box), box, box[0])
+    return float(np.hypot(*box)), f"{box[0]:g} m x {box[1]:g} m"
+
+
+def check_study(
+    case: str, cfg: ScenarioConfig, realizations: int, iterations: int, delta: float, n_methods: int
+) -> None:
+    """Refuse a step larger than the scene and realisations whose memory would exceed :data:`MAX_STUDY_BYTES`
+    (a ValueError naming the option and the figure), before anything is run or written."""
+    scene_m, box = scene_diagonal_m(cfg)
+    if not np.isfinite(delta) or not 0 < delta <= scene_m:
+        raise ValueError(
+            f"--step must be > 0 and at most {scene_m:.1f} m (the diagonal of the scene, road box {box}: a longer "
+            f"step leaves it), got {delta:g}"
+        )
+    if case != "realizations":
+        return
+    total, per = study_bytes(cfg, realizations, iterations, n_methods)
+    if total > MAX_STUDY_BYTES:
+        raise ValueError(
+            f"--realizations {realizations:,} would hold about {total / 1e9:,.1f} GB ({per / 1e3:,.1f} kB per "
+            f"realisation: {cfg.n_vehicles} x {cfg.n_vehicles} vehicle pairs and {n_methods} method(s)' "
+            f"trajectories), above the limit of {MAX_STUDY_BYTES / 1e9:g} GB; lower --realizations to at most "
+            f"{MAX_STUDY_BYTES // per:,} for this scenario"
+        )
+
+
 # The illustrative network of Fig. 3: transmitter UE0, receivers UE1-UE3 in three directions with
 # d03 > d01 > d02, interferers I4-I6 on UE0's resource with l2 > l1 > l3 (metres).
 SEVEN_NODE_POSITIONS_M = np.array(
@@ -426,14 +479,19 @@ def run_study(
     """Run one of the paper's cases and write CSV, figures and ``summary.json`` into ``out_dir``.
 
     ``judge`` scores utility and PRR: ``simulator`` (the link model) or ``model`` (the steering
-    regression model, :class:`Judge`)."""
+    regression model, :class:`Judge`). ``delta`` is at most the diagonal of the scenario's road box and
+    the realisations' estimated memory at most :data:`MAX_STUDY_BYTES` (:func:`check_study`); both are
+    checked before ``out_dir`` is touched."""
     if case not in CASES:
         raise ValueError(f"unknown case {case!r}; cases: {', '.join(CASES)}")
     if judge not in JUDGES:
         raise ValueError(f"unknown judge {judge!r}; judges: {', '.join(JUDGES)}")
+    if not methods:
+        raise ValueError(f"--methods names no method; methods: {', '.join(ALL_METHODS)}")
     bad = [m for m in methods if m not in ALL_METHODS]
     if bad:
         raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(ALL_METHODS)}")
+    check_study(case, cfg, realizations, iterations, delta, len(methods))
     params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "judge": judge}
     with run_folder(out_dir, "gbmu", overwrite=overwrite, parameters=params):
         t0 = time.perf_counter()
@@ -454,9 +512,17 @@ def run_study(
             movers = [0] * len(snaps)
         links = MoverLinks.from_snapshots(cfg, snaps, movers, truth_los=truth_los)
         inputs = gbmu_inputs(snaps, movers, links, cfg.metrics.interferer_range_m)
-        record_every = max(1, iterations // 1000) if case != "realizations" else max(1, iterations // 100)
         runs = run_methods(
-            links, inputs, model, delta, th_pos_m, iterations, record_every, methods, progress, judge=judge
+            links,
+            inputs,
+            model,
+            delta,
+            th_pos_m,
+            iterations,
+            record_interval(case, iterations),
+            methods,
+            progress,
+            judge=judge,
         )
         summary = summarize(runs)
         summary.update(

@@ -3,10 +3,16 @@
 stage-1 dataset -> stage-2 fit (Tables 2-3) -> GBMU study (Fig. 9-10) -> evaluation of the
 shipped PPO movers against static, random, GBMU, greedy and the oracle on the same held-out
 episodes of both envs -> ``REPORT.md`` with the figures, and ``report.json``.
+
+The PPO models are an input, checked before anything runs or is written (:func:`check_models`):
+a folder that does not exist or lacks the models of either env is refused; ``models_dir=None``
+(``--models none``) leaves PPO out on purpose, and then the report has no PPO rows. ``REPORT.md``
+cites only the figures and tables that were written.
 """
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from pathlib import Path
@@ -25,9 +31,55 @@ ENV_OPTIONS: dict[str, dict[str, Any]] = {"single": {}, "multi": {"replan_every"
 KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "n_prr_drop")
 
 
+#: what ``--models`` says to leave the PPO models out
+NO_MODELS = "none"
+
+
 def shipped_models(models_dir: Path, kind: str) -> list[Path]:
-    """``agents/models/<kind>_seed*/model.zip``, sorted by seed."""
-    return sorted(models_dir.glob(f"{kind}_seed*/model.zip"), key=lambda p: int(p.parent.name.split("seed")[1]))
+    """``agents/models/<kind>_seed<N>/model.zip``, sorted by seed (other folder names are not models)."""
+    pattern = re.compile(rf"{re.escape(kind)}_seed(\d+)")
+    found = [p for p in Path(models_dir).glob(f"{kind}_seed*/model.zip") if pattern.fullmatch(p.parent.name)]
+    return sorted(found, key=lambda p: int(p.parent.name.split("seed")[1]))
+
+
+def check_models(models_dir: Path | None) -> dict[str, list[Path]]:
+    """The PPO models of each env (:data:`ENVS`) in ``models_dir``, checked before any work.
+
+    Args:
+        models_dir: the folder of ``single_seed<N>/model.zip`` and ``multi_seed<N>/model.zip``
+            (``cv2x-marl train`` run folders; ``agents/models`` ships them); None: no PPO rows.
+
+    Raises:
+        ValueError: the folder does not exist, or holds no model for one of the envs (the message
+            names the folder and what it expected).
+        MissingExtraError: stable-baselines3, which loads the models, is not installed.
+    """
+    if models_dir is None:
+        return {}
+    models_dir = Path(models_dir)
+    expected = " and ".join(f"{kind}_seed<N>/model.zip" for kind in ENVS)
+    hint = (
+        f"(PPO models saved by `cv2x-marl train`, as agents/models ships them), or --models {NO_MODELS} to leave "
+        "PPO out"
+    )
+    if not models_dir.is_dir():
+        raise ValueError(f"--models {models_dir}: no such folder; expected one holding {expected} {hint}")
+    models = {kind: shipped_models(models_dir, kind) for kind in ENVS}
+    missing = [f"{kind}_seed<N>/model.zip" for kind, found in models.items() if not found]
+    if missing:
+        raise ValueError(f"--models {models_dir} holds no {' and no '.join(missing)}; expected {expected} {hint}")
+    import importlib.util
+
+    from cv2x_marl.extras import missing_extra
+
+    if importlib.util.find_spec("stable_baselines3") is None:
+        raise missing_extra("stable_baselines3", f"evaluating the PPO models of --models {models_dir}")
+    return models
+
+
+def written_files(out: Path) -> list[str]:
+    """The figures and tables under ``out`` (paths relative to it, sorted): what ``REPORT.md`` may cite."""
+    return sorted(p.relative_to(out).as_posix() for p in Path(out).rglob("*") if p.suffix in (".png", ".md"))
 
 
 def _row(method: str, results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -43,19 +95,23 @@ def reproduce(
     out: Path,
     quick: bool = False,
     seed: int = 0,
-    models_dir: Path = Path("agents/models"),
+    models_dir: Path | None = Path("agents/models"),
     progress: bool = True,
     overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Run every stage into the run folder ``out`` (one run folder per stage inside it); return the report."""
+    """Run every stage into the run folder ``out`` (one run folder per stage inside it); return the report.
+
+    ``models_dir`` is checked first (:func:`check_models`; None: no PPO rows): a missing folder or
+    missing models are refused before ``out`` is touched."""
     from cv2x_marl.runs import RunFolder
 
-    params = {"quick": quick, "seed": seed, "models_dir": str(models_dir)}
+    models = check_models(models_dir)
+    params = {"quick": quick, "seed": seed, "models_dir": None if models_dir is None else str(models_dir)}
     with RunFolder(out, "reproduce", overwrite=overwrite, parameters=params):
-        return _reproduce(Path(out), quick, seed, Path(models_dir), progress)
+        return _reproduce(Path(out), quick, seed, models, progress)
 
 
-def _reproduce(out: Path, quick: bool, seed: int, models_dir: Path, progress: bool) -> dict[str, Any]:
+def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]], progress: bool) -> dict[str, Any]:
     from cv2x_marl import plotting
     from cv2x_marl.experiments.dataset import build_dataset, load_model, run_fit
     from cv2x_marl.experiments.evaluate import evaluate
@@ -99,7 +155,7 @@ def _reproduce(out: Path, quick: bool, seed: int, models_dir: Path, progress: bo
             )
             rows.append(_row(method, [res]))
             log(f"  {kind} {method}: utility gain {res['mean_utility_gain']:+.1%}")
-        ppo_models = shipped_models(models_dir, kind)
+        ppo_models = models.get(kind, [])
         if ppo_models:
             per_seed = [
                 evaluate(None, f"ppo:{m}", episodes, seed, out / f"eval-{kind}-ppo-{m.parent.name}", progress=False)
@@ -130,8 +186,10 @@ def _reproduce(out: Path, quick: bool, seed: int, models_dir: Path, progress: bo
         "fit": {"per_nsv": fit["per_nsv"], "comparison": fit.get("comparison")},
         "gbmu_study": {k: {m: v["methods"][m] for m in v["methods"]} for k, v in study.items()},
         "movers": tables,
+        "ppo": bool(models),
         "runtime_s": time.perf_counter() - t0,
     }
+    report["files"] = written_files(out)  # what the markdown may cite (REPORT.md itself comes next)
     write_json(out / "report.json", report)
     atomic_write(out / "REPORT.md", lambda p: p.write_text(_markdown(report)))
     log(f"done in {report['runtime_s']:.0f} s: {out / 'REPORT.md'}")
@@ -142,13 +200,22 @@ def _pct(x: float) -> str:
     return f"{100 * x:+.1f} %"
 
 
+def _cite(files: list[str], names: list[str], what: str = "Figures") -> list[str]:
+    """``What: `a`, `b`.`` for those of ``names`` that were written (none: no line)."""
+    have = [n for n in names if n in files]
+    return [f"{what}: " + ", ".join(f"`{n}`" for n in have) + "."] if have else []
+
+
 def _markdown(r: dict[str, Any]) -> str:
     s = r["settings"]
+    files = list(r.get("files", []))
+    ppo = bool(r.get("ppo", True))
+    models = "" if ppo else f" --models {NO_MODELS}"
     lines = [
         "# cv2x_marl report",
         "",
-        f"Produced by `cv2x-marl reproduce{' --quick' if r['quick'] else ''} --seed {r['seed']}` "
-        f"in {r['runtime_s']:.0f} s.",
+        f"Produced by `cv2x-marl reproduce{' --quick' if r['quick'] else ''} --seed {r['seed']}{models}` "
+        f"in {r['runtime_s']:.0f} s." + ("" if ppo else " No PPO models were evaluated."),
         "",
         f"## Stage 2: two-distance model ({s['runs']} paper runs)",
         "",
@@ -165,10 +232,10 @@ def _markdown(r: dict[str, Any]) -> str:
         lines += ["", "| model | R^2 held out | Brier | log-loss |", "|---|---:|---:|---:|"]
         for k, v in r["fit"]["comparison"].items():
             lines.append(f"| {k} | {v['r2']:.3f} | {v['brier']:.4f} | {v['log_loss']:.4f} |")
+    cited = _cite(files, ["fit/fig2_surface.png", "fit/fit_quality.png"])
+    cited += _cite(files, ["fit/table2.md", "fit/table3.md"], "Tables")
+    lines += [""] + ([" ".join(cited), ""] if cited else [])
     lines += [
-        "",
-        "Figures: `fit/fig2_surface.png`, `fit/fit_quality.png`; tables: `fit/table2.md`, `fit/table3.md`.",
-        "",
         f"## GBMU study ({s['realizations']} realisations, {s['iterations']} iterations, step 1)",
         "",
         "| model | method | effectiveness | mean utility gain | share of the optimum's gain | mean PRR gain "
@@ -182,12 +249,14 @@ def _markdown(r: dict[str, Any]) -> str:
                 f"| {model} | {m} | {v['effectiveness']:.1%} | {_pct(v['mean_utility_gain'])} | "
                 f"{'-' if share is None else f'{share:.0%}'} | {_pct(v['mean_prr_gain'])} | {v['n_prr_drop']} |"
             )
-    lines += ["", "Paper (Fig. 9-10): 93 %, +15 %, +5 %, 40 of 144. Figures: `gbmu-*/fig9_fig10_gains.png`."]
+    gbmu_figures = _cite(files, [f"gbmu-{model}/fig9_fig10_gains.png" for model in r["gbmu_study"]])
+    lines += ["", " ".join(["Paper (Fig. 9-10): 93 %, +15 %, +5 %, 40 of 144.", *gbmu_figures])]
     for kind, rows in r["movers"].items():
         n_ep = s[f"episodes_{kind}"]
         lines += [
             "",
-            f"## Movers on `{ENVS[kind]}` ({n_ep} held-out episodes; PPO: mean +- std over training seeds)",
+            f"## Movers on `{ENVS[kind]}` ({n_ep} held-out episodes"
+            + ("; PPO: mean +- std over training seeds)" if any(row["n_seeds"] > 1 for row in rows) else ")"),
             "",
             "| method | mean utility gain | share of the optimum's gain | effectiveness | mean PRR gain | Jain "
             "| PRR drops |",
@@ -208,5 +277,5 @@ def _markdown(r: dict[str, Any]) -> str:
                 f"{cell('effectiveness', '.1f')} | "
                 f"{cell('mean_prr_gain', '+.1f')} | {cell('jain_fairness', '')} | {row['n_prr_drop']:.1f} |"
             )
-        lines += ["", f"Figures: `comparison-{kind}.png`, `learning-{kind}.png`."]
+        lines += ["", *_cite(files, [f"comparison-{kind}.png", f"learning-{kind}.png"])]
     return "\n".join(lines) + "\n"

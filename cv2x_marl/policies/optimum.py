@@ -105,8 +105,50 @@ class ReachableSet:
         return ok
 
 
+#: most points a search grid may hold: about 224 MB at the search's peak of 56 bytes per point
+#: (positions, masks, utilities; measured) and some seconds of link evaluation per search
+MAX_GRID_POINTS = 4_000_000
+#: peak bytes per grid point of :func:`best_reachable` (measured with tracemalloc: 56.0)
+GRID_POINT_BYTES = 56
+
+
+class SearchGridError(ValueError):
+    """A search grid that would exceed :data:`MAX_GRID_POINTS`; raised before anything is allocated."""
+
+
+def grid_points(width_m: float, height_m: float, pitch_m: float) -> int:
+    """Points of a grid of pitch ``pitch_m`` over a ``width_m`` x ``height_m`` box (as :func:`_grid` lays it)."""
+    return _axis_points(width_m, pitch_m) * _axis_points(height_m, pitch_m)
+
+
+def _axis_points(span_m: float, pitch_m: float) -> int:
+    if not np.isfinite(span_m) or not np.isfinite(pitch_m) or pitch_m <= 0:
+        raise SearchGridError(f"cannot lay a search grid of pitch {pitch_m!r} m over {span_m!r} m")
+    return max(int(np.ceil(span_m / pitch_m)) + 1, 1)
+
+
+def grid_size_text(n_points: int) -> str:
+    """``N points (about X MB)``: a grid's size and its memory at the search's peak."""
+    return f"{n_points:,} points (about {_bytes_text(n_points * GRID_POINT_BYTES)})"
+
+
+def _bytes_text(n_bytes: float) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n_bytes >= size:
+            return f"{n_bytes / size:,.1f} {unit}"
+    return f"{n_bytes / 1e3:,.1f} kB"
+
+
 def _grid(lo: FloatArray, hi: FloatArray, pitch_m: float) -> FloatArray:
-    axes = [np.linspace(lo[c], hi[c], max(int(np.ceil((hi[c] - lo[c]) / pitch_m)) + 1, 1)) for c in range(2)]
+    counts = [_axis_points(float(hi[c] - lo[c]), pitch_m) for c in range(2)]
+    if counts[0] * counts[1] > MAX_GRID_POINTS:  # checked before anything is allocated
+        raise SearchGridError(
+            f"the position search would lay {grid_size_text(counts[0] * counts[1])} over "
+            f"{hi[0] - lo[0]:,.0f} m x {hi[1] - lo[1]:,.0f} m at a pitch of {pitch_m:g} m, above the limit of "
+            f"{MAX_GRID_POINTS:,} points; lower max_step_m or max_cycles (the reachable square is "
+            "2 x max_cycles x max_step_m wide), or bound it with max_drift_m or roi=True"
+        )
+    axes = [np.linspace(lo[c], hi[c], counts[c]) for c in range(2)]
     gx, gy = np.meshgrid(*axes, indexing="ij")
     return np.stack((gx.ravel(), gy.ravel()), axis=1)
 
@@ -173,6 +215,43 @@ def reachable_set(env: Any, i: int) -> ReachableSet:
     )
 
 
+#: pitch of the global grid of the observation plans (:func:`model_plan`, :func:`sensing_plan`), m
+PLAN_GRID_M = 20.0
+
+
+def reach_extent_m(env: Any) -> tuple[float, float]:
+    """Width and height (m) of the widest box :meth:`ReachableSet.bounds` gives a mover of a snapshot-mode
+    env at reset, wherever it starts: the square of half-width ``(max_cycles - settle_steps) x max_step_m``,
+    narrowed by the drift disc, the region of interest or the torus period as :func:`reachable_set` does."""
+    steps = max(env.max_cycles - getattr(env, "settle_steps", 0), 0)
+    radius = steps * float(env.max_step_m)
+    width = np.full(2, 2.0 * radius)
+    if env.max_drift_m is not None:
+        width = np.minimum(width, 2.0 * env.max_drift_m)
+    wrap = getattr(env, "_wrap_road", None)
+    if env.roi:
+        width = np.minimum(width, np.asarray(env.box_m, dtype=np.float64))
+    elif wrap is not None and env.max_drift_m is None:
+        period = np.asarray(wrap.periodic_box_m, dtype=np.float64)
+        width = np.where(np.isfinite(period) & (radius >= 0.5 * period), period, width)
+    return float(width[0]), float(width[1])
+
+
+def check_reach_grid(env: Any, pitch_m: float, what: str) -> None:
+    """Refuse, before any search, a reachable set whose grid of pitch ``pitch_m`` would exceed
+    :data:`MAX_GRID_POINTS` (:class:`SearchGridError` with the figure and the options to lower)."""
+    w, h = reach_extent_m(env)
+    n = grid_points(w, h, pitch_m)
+    if n > MAX_GRID_POINTS:
+        steps = max(env.max_cycles - getattr(env, "settle_steps", 0), 0)
+        raise SearchGridError(
+            f"{what} searches the reachable square, {w:,.0f} m x {h:,.0f} m ({steps} moving steps x max_step_m "
+            f"{env.max_step_m:g} m each way), on a {pitch_m:g} m grid: {grid_size_text(n)}, above the limit of "
+            f"{MAX_GRID_POINTS:,} points; lower max_step_m or max_cycles, or bound the square with max_drift_m "
+            "or roi=True"
+        )
+
+
 def best_response_targets(
     env: Any, movers: list[int], rounds: int = 2, grid_m: float = 2.5, refine: int = 16
 ) -> FloatArray:
@@ -211,6 +290,7 @@ class OptimumPolicy:
         self.rounds = rounds
         # one mover: 2.5 m; best-response rounds over many movers: 10 m (then refined to 0.1 m)
         self.grid_m = grid_m if grid_m is not None else (2.5 if int(np.sum(env.mover_mask)) == 1 else 10.0)
+        check_reach_grid(env, self.grid_m, "the optimum policy")  # refused here, before an episode runs
         self.refine = refine
         self.targets_m: FloatArray | None = None
         self._episode: int | None = None
@@ -268,7 +348,12 @@ class ModelRow:
 
 
 def model_plan(
-    inputs: Any, starts_m: FloatArray, reaches: list[ReachableSet], model: Any, p_min: float, grid_m: float = 20.0
+    inputs: Any,
+    starts_m: FloatArray,
+    reaches: list[ReachableSet],
+    model: Any,
+    p_min: float,
+    grid_m: float = PLAN_GRID_M,
 ) -> FloatArray:
     """[B, 2] the model's best reachable position of B movers (the ``plan`` of observation v1).
 
@@ -287,7 +372,9 @@ def model_plan(
     return out
 
 
-def sensing_plan(env: Any, movers: list[int] | NDArray[np.int64], grid_m: float = 20.0, refine: int = 4) -> FloatArray:
+def sensing_plan(
+    env: Any, movers: list[int] | NDArray[np.int64], grid_m: float = PLAN_GRID_M, refine: int = 4
+) -> FloatArray:
     """[B, 2] each mover's best reachable position under its own sensing estimate (the ``-v2`` plan).
 
     The estimate is :meth:`cv2x_marl.sim.evaluate.SnapshotLinks.sensed_row`: the mover's links as it

@@ -66,6 +66,11 @@ CACHE_ENV = "CV2X_MARL_SUMO_CACHE"
 ROUTE_HORIZON_S = 3600.0
 #: SUMO seconds the lockstep waits for ``N`` vehicles to be in the network before giving up
 MAX_FILL_S = 3600.0
+#: most ``<vehicle>`` rows (vehicles x SUMO steps) ``sumo export`` writes to ``fcd.xml`` (and then reads back)
+MAX_FCD_ROWS = 10_000_000
+#: bytes of one FCD row at 6 decimals (``<vehicle id=... x=... y=... angle=... type=... speed=... pos=...
+#: lane=... slope=.../>``), for the size figure
+FCD_ROW_BYTES = 150
 #: file names of a generated (or exported) scenario
 NET_FILE, ROUTE_FILE, CFG_FILE = "net.net.xml", "routes.rou.xml", "scenario.sumocfg"
 #: format version of the generated files (part of every cache key)
@@ -1360,6 +1365,27 @@ def trace_table(trace: Trace) -> Any:
     )
 
 
+def export_seconds(cfg: ScenarioConfig, seconds: float | None) -> float:
+    """The SUMO seconds :func:`export_scenario` records (``seconds``, or its default), checked: a finite
+    number > 0 whose FCD trace, ``n_vehicles x (seconds / step + 1)`` rows, is at most :data:`MAX_FCD_ROWS`
+    (a ValueError naming ``--seconds``, the estimate and the largest accepted value otherwise)."""
+    if seconds is None:
+        seconds = cfg.sumo_begin_s + (cfg.sim.warmup_subframes + cfg.sim.n_subframes) / 1000.0 + 60.0
+    if isinstance(seconds, bool) or not isinstance(seconds, int | float) or not np.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"--seconds must be a finite number > 0, got {seconds!r}")
+    step_s = cfg.traffic.rri_ms / 1000.0
+    n = cfg.n_vehicles
+    rows = n * (int(np.ceil(seconds / step_s)) + 1)
+    if rows > MAX_FCD_ROWS:
+        most = (MAX_FCD_ROWS // n - 1) * step_s
+        raise ValueError(
+            f"--seconds {seconds:g} would write an FCD trace of about {rows:,} rows ({n} vehicles x one row per "
+            f"{step_s:g} s step; about {rows * FCD_ROW_BYTES / 1e9:,.1f} GB of fcd.xml), above the limit of "
+            f"{MAX_FCD_ROWS:,} rows; lower --seconds to at most {most:,.0f} for this scenario"
+        )
+    return float(seconds)
+
+
 def export_scenario(
     cfg: ScenarioConfig, seed: int, out_dir: Path, seconds: float | None = None, parquet: bool = False
 ) -> dict[str, Any]:
@@ -1375,7 +1401,8 @@ def export_scenario(
         seed: the run seed (as for ``simulate --seed``).
         out_dir: an existing folder.
         seconds: SUMO seconds to record; default: the run (``sim.warmup_subframes + sim.n_subframes``)
-            plus 60 s for the vehicles to enter.
+            plus 60 s for the vehicles to enter; at most what keeps the trace within
+            :data:`MAX_FCD_ROWS` (:func:`export_seconds`).
         parquet: also write the trace as parquet.
 
     Returns:
@@ -1389,8 +1416,7 @@ def export_scenario(
             "sumo export generates a scenario from the road section; vehicles.sumo_config is set "
             f"({cfg.vehicles.sumo_config!r}): run that scenario with SUMO directly"
         )
-    if seconds is None:
-        seconds = cfg.sumo_begin_s + (cfg.sim.warmup_subframes + cfg.sim.n_subframes) / 1000.0 + 60.0
+    seconds = export_seconds(cfg, seconds)
     scenario = build_scenario(cfg, RngStreams.from_seed(seed).mobility)
     atomic_write(out_dir / NET_FILE, partial(shutil.copyfile, build_network(cfg)))
     atomic_write(out_dir / ROUTE_FILE, partial(shutil.copyfile, scenario.sumocfg.parent / ROUTE_FILE))
