@@ -231,6 +231,9 @@ def evaluate(
         env_id = env_id or trained_id
         env_kwargs = {**trained_env, **env_kwargs}
     env_id = env_id or "cv2x/SingleMover-v2"
+    inputs = [Path(model_path)]  # the files read: --out may not be, contain or lie inside one
+    if isinstance(policy_spec, str) and policy_spec.startswith("ppo:"):
+        inputs.append(Path(policy_spec[4:]))
     env = make_eval_env(env_id, **env_kwargs)
     if spec is not None:  # its model (a shipped name or a file) and its step schedule
         policy = make_baseline_policy(spec, env)
@@ -246,7 +249,7 @@ def evaluate(
 
         OptimumPolicy(env)
     params = {"env_id": env_id, "policy": str(policy_spec), "episodes": episodes, "seed": seed}
-    with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params):
+    with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params, inputs=inputs):
         zero = np.zeros(2, dtype=np.float32)
         rows: list[dict[str, Any]] = []
         t0 = time.perf_counter()

@@ -107,7 +107,8 @@ def reproduce(
 
     models = check_models(models_dir)
     params = {"quick": quick, "seed": seed, "models_dir": None if models_dir is None else str(models_dir)}
-    with RunFolder(out, "reproduce", overwrite=overwrite, parameters=params):
+    inputs = [] if models_dir is None else [models_dir]
+    with RunFolder(out, "reproduce", overwrite=overwrite, parameters=params, inputs=inputs):
         return _reproduce(Path(out), quick, seed, models, progress)
 
 
