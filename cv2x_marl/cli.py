@@ -18,7 +18,6 @@ from cv2x_marl.config import (
     config_markdown,
     load_config_file,
     preset,
-    show_text,
     show_value,
     to_dict,
 )
@@ -227,16 +226,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_gbmu(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments.baselines import resolve_model
     from cv2x_marl.experiments.dataset import load_model
-    from cv2x_marl.experiments.gbmu_study import ALL_METHODS, run_study
+    from cv2x_marl.experiments.gbmu_study import check_methods, run_study
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in ALL_METHODS]
-    if not methods or unknown:
-        got = f"unknown method(s) {', '.join(show_text(m) for m in unknown)}" if unknown else "no method"
-        raise ConfigError(
-            f"--methods {show_value(args.methods)} names {got}; give one or more of, separated by commas: "
-            + ", ".join(ALL_METHODS)
-        )
+    check_methods(methods, args.methods)  # before the model is read
     cfg = _scenario(args)
     model = load_model(resolve_model(str(args.model)))
     summary = run_study(

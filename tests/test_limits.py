@@ -132,8 +132,3 @@ def test_sumo_export_refuses_a_trace_above_the_row_limit(tmp_path: Path, capsys:
     # 21 vehicles x (1e9 s / 0.1 s + 1) rows; the largest accepted: (10,000,000 // 21 - 1) x 0.1 s
     assert "--seconds 1e+09 would write an FCD trace of about 210,000,000,021 rows" in err
     assert "lower --seconds to at most 47,619 for this scenario" in err
-
-
-def test_gbmu_refuses_an_empty_method_list(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    err = _refused(["gbmu", "--quiet", "--methods", ""], tmp_path / "out", capsys)
-    assert "--methods names no method; methods: gbmu, greedy, oracle, planner, optimum" in err

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.config import ScenarioConfig, apply_overrides, to_dict
+from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides, show_text, show_value, to_dict
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.gbmu import (
     ClimbResult,
@@ -460,6 +460,22 @@ def _write_csv(path: Path, runs: dict[str, MethodRun], seeds: Sequence[int]) -> 
     atomic_write(path, write)
 
 
+def check_methods(methods: Sequence[str], given: str | None = None) -> None:
+    """Refuse an empty or unknown method list, naming ``--methods`` (``given``: the text as typed).
+
+    Raises:
+        ConfigError: no method, or a name not in :data:`ALL_METHODS` (listed in the message).
+    """
+    unknown = [m for m in methods if m not in ALL_METHODS]
+    if methods and not unknown:
+        return
+    got = f"unknown method(s) {', '.join(show_text(m) for m in unknown)}" if unknown else "no method"
+    typed = show_value(given if given is not None else ",".join(methods))
+    raise ConfigError(
+        f"--methods {typed} names {got}; give one or more of, separated by commas: " + ", ".join(ALL_METHODS)
+    )
+
+
 def run_study(
     case: str,
     cfg: ScenarioConfig,
@@ -486,11 +502,7 @@ def run_study(
         raise ValueError(f"unknown case {case!r}; cases: {', '.join(CASES)}")
     if judge not in JUDGES:
         raise ValueError(f"unknown judge {judge!r}; judges: {', '.join(JUDGES)}")
-    if not methods:
-        raise ValueError(f"--methods names no method; methods: {', '.join(ALL_METHODS)}")
-    bad = [m for m in methods if m not in ALL_METHODS]
-    if bad:
-        raise ValueError(f"unknown method(s) {bad}; methods: {', '.join(ALL_METHODS)}")
+    check_methods(methods)
     check_study(case, cfg, realizations, iterations, delta, len(methods))
     params = {"case": case, "seed": seed, "realizations": realizations, "iterations": iterations, "judge": judge}
     with run_folder(out_dir, "gbmu", overwrite=overwrite, parameters=params):
