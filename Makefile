@@ -1,12 +1,14 @@
 # make install: create .venv and install cv2x_marl with every extra, under constraints.txt (idempotent)
 # make run:     install, then the main job
 # make test:    install, then lint (ruff), types (mypy) and the test suite (pytest)
+# make test-portable: the kernel-equality tests (pytest -m kernel_equality) again under numpy's baseline
+#               SIMD paths and numba's generic x86-64 target, with a fresh numba cache (.ci/run runs it)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test lint bench docs clean
+.PHONY: install run test test-portable lint bench docs clean
 
 install: $(STAMP)
 
@@ -25,6 +27,14 @@ lint: install
 
 test: lint
 	$(BIN)/python -m pytest
+
+PORTABLE_ENV := NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" NUMBA_CPU_NAME=generic
+
+test-portable: install
+	cache=$$(mktemp -d) && trap 'rm -rf "$$cache"' EXIT && export $(PORTABLE_ENV) NUMBA_CACHE_DIR="$$cache" && \
+	$(BIN)/python -c "from numpy._core._multiarray_umath import __cpu_dispatch__ as d, __cpu_features__ as f; \
+	print('numpy SIMD dispatch in use:', ' '.join(x for x in d if f.get(x)) or 'none (baseline)')" && \
+	$(BIN)/python -m pytest -m kernel_equality -p no:cacheprovider
 
 bench: install
 	$(BIN)/python benchmarks/bench_sim.py

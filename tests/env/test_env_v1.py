@@ -65,6 +65,7 @@ def _reference_v1(env: MobilityEnv, model: TwoDistanceModel, obs: dict) -> None:
         assert own[8] == pytest.approx(left * env.max_step_m / lay.scale_m)
 
 
+@pytest.mark.kernel_equality
 def test_v1_observation_entries_equal_a_numpy_construction() -> None:
     env = MobilityEnv(observation=1, privileged=True, max_cycles=10, **FAST)
     obs, _ = env.reset(seed=4)

@@ -40,6 +40,7 @@ def test_v2_ids_and_checkers() -> None:
         MobilityEnv(observation=2, truth_los="geometry")
 
 
+@pytest.mark.kernel_equality
 def test_sensed_row_is_the_truth_without_the_shadowing_between_others() -> None:
     """The estimate equals the numpy reference evaluation of a snapshot whose shadowing between
     pairs that do not include the mover is 0 dB, and differs from the truth only through it."""

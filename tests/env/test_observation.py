@@ -73,6 +73,7 @@ def test_hand_built_scene() -> None:
     assert obs.dtype == np.float32 and obs.shape == (4, layout.size)
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("k", [20, 6])
 def test_kernel_matches_the_numpy_construction(k: int) -> None:
     rng = np.random.default_rng(3)
@@ -89,6 +90,7 @@ def test_kernel_matches_the_numpy_construction(k: int) -> None:
         assert np.abs(got).max() == pytest.approx(3.0)
 
 
+@pytest.mark.kernel_equality
 def test_link_summaries_match_the_utility_module() -> None:
     rng = np.random.default_rng(0)
     p = rng.random((9, 9)) * (rng.random((9, 9)) < 0.8)  # some exact zeros

@@ -98,6 +98,7 @@ def test_shadowing_statistics_and_correlation() -> None:
     assert z1.std() == pytest.approx(1.0, abs=0.01)
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("h_m", [0.5, 1.5])
 def test_compiled_winner_b1_equals_the_formula_composition(h_m: float) -> None:
     """winner_b1_db (one compiled pass) against the numpy LOS / NLOS / free-space formulas."""

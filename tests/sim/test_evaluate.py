@@ -26,6 +26,7 @@ CASES: dict[str, tuple[str, dict[str, Any], str]] = {
 }
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("case", list(CASES))
 def test_snapshot_links_match_mover_links_when_one_vehicle_moves(case: str) -> None:
     name, over, truth_los = CASES[case]
@@ -81,6 +82,7 @@ def test_pair_geometry_is_the_displacement_table() -> None:
     assert wrapped.disp_m[:, 0, 2].tolist() == [10.0, 2.0] and wrapped.disp_m[:, 2, 0].tolist() == [-10.0, -2.0]
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("name", ["paper", "highway-legacy"])
 def test_snapshot_links_match_the_simulators_own_links(name: str) -> None:
     """Every link the simulator decodes in the period after the snapshot, wrap-around included."""

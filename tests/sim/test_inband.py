@@ -237,6 +237,7 @@ def test_the_flat_model_leaves_sensing_co_channel() -> None:
     np.testing.assert_allclose(rssi[3 * 2 + 0], 10.0 ** (links["rx_power_dbm"][k] / 10.0) + noise_mw, rtol=1e-6)
 
 
+@pytest.mark.kernel_equality
 def test_the_env_evaluators_follow_the_3gpp_model() -> None:
     """SnapshotLinks (compiled and numpy) and MoverLinks give the simulator's own P with 3gpp."""
     sim, (snap, links) = _scene()
@@ -252,6 +253,7 @@ def test_the_env_evaluators_follow_the_3gpp_model() -> None:
         np.testing.assert_allclose(p[links["rx"][sel]], links["p_success"][sel], rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("name", ["paper", "highway-legacy"])
 def test_snapshot_links_match_the_simulator_with_the_3gpp_model(name: str) -> None:
     cfg = apply_overrides(preset(name), ["sim.warmup_subframes=300", "link.inband_emission_model=3gpp"])

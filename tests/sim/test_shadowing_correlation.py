@@ -4,6 +4,8 @@ shadowing with the change of its distance, ``rho = exp(-|d(t) - d(t')| / d_c)`` 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -22,7 +24,8 @@ def _pair(correlation: str, seed: int = 5) -> tuple[channel.Shadowing, np.random
     return sh, twin
 
 
-def test_pair_distance_follows_its_formula_for_a_hand_built_motion() -> None:
+@pytest.mark.kernel_equality
+def test_pair_distance_follows_its_formula_for_a_hand_built_motion(tolerances: Any) -> None:
     sh, twin = _pair("pair_distance")
     z0 = sh._z[A, B].copy()
     odo = np.zeros(3)
@@ -38,21 +41,28 @@ def test_pair_distance_follows_its_formula_for_a_hand_built_motion() -> None:
     z2 = sh.sample(A, B, odo, d2)
     g2 = twin.standard_normal(3)
     rho = np.exp(-np.array([0.0, 10.0, 20.0]) / 25.0)
-    np.testing.assert_allclose(z2, rho * z1 + np.sqrt(1.0 - rho**2) * g2, rtol=1e-15)
+    # the step is compiled (libm's exp), the formula here numpy's exp (SIMD on some CPUs): the AR(1)
+    # step's propagated tolerance (tests/sim/conftest.py), not bit for bit
+    want = rho * z1 + np.sqrt(1.0 - rho**2) * g2
+    assert np.all(np.abs(z2 - want) <= tolerances.ar1(rho, z1, g2)), z2 - want
     assert z2[0] == z1[0]
     # symmetric storage
     np.testing.assert_array_equal(sh._z[B, A], z2)
     del g1
 
 
-def test_travelled_is_unchanged() -> None:
+@pytest.mark.kernel_equality
+def test_travelled_is_unchanged(tolerances: Any) -> None:
     sh, twin = _pair("travelled")
     z0 = sh._z[A, B].copy()
     odo = np.array([3.0, 3.0, 7.0])
     z1 = sh.sample(A, B, odo, np.array([40.0, 90.0, 80.0]))  # distances ignored
     g = twin.standard_normal(3)
     rho = np.exp(-(odo[A] + odo[B]) / 25.0)
-    np.testing.assert_allclose(z1, rho * z0 + np.sqrt(1.0 - rho**2) * g, rtol=1e-15)
+    # compiled step (libm's exp) against numpy's exp (SIMD on some CPUs; 1.4e-14 relative apart on an
+    # AVX-512 Xeon, where the two terms partly cancel): the AR(1) step's propagated tolerance
+    want = rho * z0 + np.sqrt(1.0 - rho**2) * g
+    assert np.all(np.abs(z1 - want) <= tolerances.ar1(rho, z0, g)), z1 - want
     default = channel.Shadowing(3, 25.0, np.random.default_rng(5))
     np.testing.assert_array_equal(default.sample(A, B, odo), z1)
 
