@@ -2,7 +2,8 @@
 # make run:     install, then the main job
 # make test:    install, then lint (ruff), types (mypy) and the test suite (pytest)
 # make test-portable: the kernel-equality tests (pytest -m kernel_equality) again under numpy's baseline
-#               SIMD paths and numba's generic x86-64 target, with a fresh numba cache (.ci/run runs it)
+#               SIMD paths and numba's generic x86-64 target, with a fresh numba cache, then once more with
+#               numpy's exp/log/log10/power moved by 1-2 ulp (tests/conftest.py) (.ci/run runs it)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -34,7 +35,8 @@ test-portable: install
 	cache=$$(mktemp -d) && trap 'rm -rf "$$cache"' EXIT && export $(PORTABLE_ENV) NUMBA_CACHE_DIR="$$cache" && \
 	$(BIN)/python -c "from numpy._core._multiarray_umath import __cpu_dispatch__ as d, __cpu_features__ as f; \
 	print('numpy SIMD dispatch in use:', ' '.join(x for x in d if f.get(x)) or 'none (baseline)')" && \
-	$(BIN)/python -m pytest -m kernel_equality -p no:cacheprovider
+	$(BIN)/python -m pytest -m kernel_equality -p no:cacheprovider && \
+	CV2X_MARL_TEST_ULP_NOISE=1 $(BIN)/python -m pytest -m kernel_equality -p no:cacheprovider
 
 bench: install
 	$(BIN)/python benchmarks/bench_sim.py
