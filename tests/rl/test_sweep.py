@@ -132,6 +132,14 @@ def _plots(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     return calls
 
 
+def _tiny_sweep(tmp_path: Path, out: Path) -> int:
+    """``cv2x-marl sweep`` of the tiny config over seeds 0 and 1 into ``out``; its exit status."""
+    cfg_file = tmp_path / "tiny.yaml"
+    cfg_file.write_text(TINY)
+    argv = ["sweep", "--config", str(cfg_file), "--seeds", "0,1", "--timesteps", "64", "--out", str(out)]
+    return main([*argv, "--quiet"])
+
+
 @pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
 def test_ctrl_c_or_sigterm_during_a_sweep_raises_and_rolls_the_folder_back(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], signame: str
@@ -153,11 +161,8 @@ def test_ctrl_c_or_sigterm_during_a_sweep_raises_and_rolls_the_folder_back(
 
     _fake_tune(monkeypatch, fit)
     plots = _plots(monkeypatch)
-    cfg_file = tmp_path / "tiny.yaml"
-    cfg_file.write_text(TINY)
     out = tmp_path / "sweep"
-    argv = ["sweep", "--config", str(cfg_file), "--seeds", "0,1", "--timesteps", "64", "--out", str(out)]
-    assert main([*argv, "--quiet"]) == 130
+    assert _tiny_sweep(tmp_path, out) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not out.exists() and plots == []
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
@@ -176,11 +181,8 @@ def test_a_sweep_whose_trials_tune_stopped_is_an_interrupt_not_a_plot(
 
     _fake_tune(monkeypatch, fit)
     plots = _plots(monkeypatch)
-    cfg_file = tmp_path / "tiny.yaml"
-    cfg_file.write_text(TINY)
     out = tmp_path / "sweep"
-    argv = ["sweep", "--config", str(cfg_file), "--seeds", "0,1", "--timesteps", "64", "--out", str(out)]
-    assert main([*argv, "--quiet"]) == 130
+    assert _tiny_sweep(tmp_path, out) == 130
     err = capsys.readouterr().err
     assert "stopped before 1 of 2 trials finished (seed1_base)" in err
     assert not out.exists() and plots == []
