@@ -160,17 +160,14 @@ def check_dataset_memory(cfg: ScenarioConfig, runs: int, aggregate: bool = False
     Raises:
         ConfigError: naming ``--runs``, the estimate, the limit and how many runs fit.
     """
-    from cv2x_marl.sim.memory import ENV_LIMIT, QUICK_PASS_BYTES, _env_limit_bytes, _gb, available_memory_bytes
+    from cv2x_marl.sim.memory import ENV_LIMIT, memory_limit
+    from cv2x_marl.sim.memory import format_bytes as _gb
 
     est = estimate_dataset_bytes(cfg, runs, aggregate)
-    limit = _env_limit_bytes()
-    source = ENV_LIMIT
-    if limit is None:
-        if est["total"] <= QUICK_PASS_BYTES:
-            return est
-        limit, source = available_memory_bytes(), "the memory available now, MemAvailable"
-    if est["total"] <= limit:
+    checked = memory_limit(est["total"])
+    if checked is None or est["total"] <= checked[0]:
         return est
+    limit, source = checked
     per_run = (est["samples"] + runs - 1) // runs
     fit = max(0, (limit - est["simulator"]) // max(1, per_run))
     fits = f"about {fit:,} runs fit" if fit >= 1 else "not one run fits"

@@ -359,20 +359,10 @@ def check_training_memory(cfg: TrainConfig, env: Any, limit_bytes: int | None = 
     from cv2x_marl.sim import memory
 
     est = estimate_training_memory(cfg, env)
-    source = "limit_bytes"
-    if limit_bytes is None:
-        try:
-            limit_bytes = memory._env_limit_bytes()  # the simulator's limit variable, checked the same way
-        except ValueError as exc:
-            raise TrainError(str(exc)) from exc
-        source = memory.ENV_LIMIT
-    if limit_bytes is None:
-        if est["total"] <= memory.QUICK_PASS_BYTES:
-            return est
-        limit_bytes = memory.available_memory_bytes()
-        source = "memory available now, MemAvailable"
-    if est["total"] <= limit_bytes:
+    checked = (limit_bytes, "limit_bytes") if limit_bytes is not None else memory.memory_limit(est["total"])
+    if checked is None or est["total"] <= checked[0]:
         return est
+    limit_bytes, source = checked
     parts = {
         "env_copies": f"train.copies={cfg.copies} env copies x {_gb(est['per_copy'])} each (plus one reset)",
         "start_cache": f"train.start_pool={cfg.start_pool} + train.eval_episodes={cfg.eval_episodes} cached starts",
@@ -391,10 +381,9 @@ def check_training_memory(cfg: TrainConfig, env: Any, limit_bytes: int | None = 
 
 
 def _gb(n_bytes: float) -> str:
-    gb = n_bytes / 1e9
-    if gb >= 100:
-        return f"{gb:,.0f} GB"
-    return f"{gb:.3g} GB" if gb >= 0.01 else f"{n_bytes / 1e6:.3g} MB"
+    from cv2x_marl.sim.memory import format_bytes
+
+    return format_bytes(n_bytes)
 
 
 def check_training_config(cfg: TrainConfig) -> dict[str, int]:

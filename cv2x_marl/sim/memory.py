@@ -300,6 +300,29 @@ def _gb(x: float) -> str:
     return f"{gb:,.0f} GB" if gb >= 100 else f"{gb:.3g} GB"
 
 
+def format_bytes(x: float) -> str:
+    """A byte count for messages: ``1,234 GB`` from 100 GB, ``4.76 GB`` down to 10 MB, ``3.2 MB`` below."""
+    return _gb(x) if x >= 0.01 * GB else f"{x / 1e6:.3g} MB"
+
+
+def memory_limit(total_bytes: int) -> tuple[int, str] | None:
+    """The limit an estimate of ``total_bytes`` is checked against, with where it comes from.
+
+    ``CV2X_MARL_MEMORY_LIMIT_GB`` (GB) when set; else the memory available now
+    (:func:`available_memory_bytes`), which is not read for estimates below 256 MiB: None then
+    (nothing to check). Shared by every estimate made before allocating (datasets, training).
+
+    Raises:
+        ConfigError: ``CV2X_MARL_MEMORY_LIMIT_GB`` is not a number > 0.
+    """
+    limit = _env_limit_bytes()
+    if limit is not None:
+        return limit, ENV_LIMIT
+    if total_bytes <= QUICK_PASS_BYTES:
+        return None
+    return available_memory_bytes(), "the memory available now, MemAvailable"
+
+
 def check_memory(cfg: ScenarioConfig, n_subframes: int | None = None, limit_bytes: int | None = None) -> dict[str, int]:
     """Refuse a configuration whose estimated peak memory exceeds the limit, before allocating.
 
