@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from cv2x_marl.env.observation import OWN_V1, _observation_kernel
 from cv2x_marl.sim import kernels
-from cv2x_marl.sim.kernels import _moved_signal_dbm, _success_at_level
+from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -166,10 +166,10 @@ def _mover_steps(
         u = 0.0
         for j in range(n):
             if target[k, i, j]:
-                s_dbm = _moved_signal_dbm(
+                s_dbm = moved_signal_dbm(
                     x, y, positions_m[k], i, j, period_m, los_row[k], gain_row_db[k], wb1, range2_m2
                 )
-                pj = _success_at_level(
+                pj = success_at_level(
                     s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
                 )
                 p[k, i, j] = pj
@@ -359,7 +359,7 @@ class MoverBatch:
         args = row._args
         self.los_row[k] = args[3]
         self.gain_row_db[k] = args[4]
-        self.level_db[k] = kernels._levels_db(args[7], args[8])
+        self.level_db[k] = kernels.levels_db(args[7], args[8])
         s = self.scalars[k]
         s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.u[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
         s[BASE_PREV] = env._base_prev[i]

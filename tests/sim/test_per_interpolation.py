@@ -1,6 +1,6 @@
 """link.per_interpolation (issue 13, defect 4): ``log`` interpolates ln PER linearly in SINR (dB);
 ``linear`` (the default) is unchanged. The numpy path (:class:`cv2x_marl.sim.link.PerCurve`) and the
-compiled one (:func:`cv2x_marl.sim.kernels._per_success`) must agree."""
+compiled one (:func:`cv2x_marl.sim.kernels.per_success`) must agree."""
 
 from __future__ import annotations
 
@@ -63,12 +63,12 @@ def test_compiled_kernel_agrees_with_numpy(name: str, interp: str, tolerances: A
     curve = link.load_per_curve(name, interp)
     x = np.r_[np.linspace(-5.0, 20.0, 2001), curve.sinr_db, -np.inf, np.inf, np.nan]
     want = curve.success(x)
-    got = np.array([kernels._per_success(v, curve.sinr_db, curve.per, interp == "log") for v in x])
+    got = np.array([kernels.per_success(v, curve.sinr_db, curve.per, interp == "log") for v in x])
     want = np.where(np.isnan(x), 0.0, want)  # the kernel treats NaN as below the table
     np.testing.assert_allclose(got, want, rtol=0.0, atol=tolerances.p_atol)
     # through the model code the env kernels use
     lvl = np.array(
-        [kernels._success_at_level(v, 0.0, curve.kernel_model, curve.sinr_db, curve.per, 2.0, -np.inf) for v in x[:-3]]
+        [kernels.success_at_level(v, 0.0, curve.kernel_model, curve.sinr_db, curve.per, 2.0, -np.inf) for v in x[:-3]]
     )
     np.testing.assert_allclose(lvl, want[:-3], rtol=0.0, atol=tolerances.p_atol)
     assert curve.kernel_model == (kernels.MODEL_PER_TABLE_LOG if interp == "log" else kernels.MODEL_PER_TABLE)
@@ -77,7 +77,7 @@ def test_compiled_kernel_agrees_with_numpy(name: str, interp: str, tolerances: A
 def test_linear_kernel_is_unchanged_by_the_new_argument() -> None:
     curve = link.load_per_curve(R05)
     for v in (-1.0, 0.3, 7.0, 11.9):
-        assert kernels._per_success(v, curve.sinr_db, curve.per) == kernels._per_success(
+        assert kernels.per_success(v, curve.sinr_db, curve.per) == kernels.per_success(
             v, curve.sinr_db, curve.per, False
         )
 

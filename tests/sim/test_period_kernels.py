@@ -40,13 +40,13 @@ def test_db_below_agrees_with_the_logarithm_at_and_around_the_threshold() -> Non
         near = lin * (1.0 + rng.uniform(-3e-9, 3e-9, 400))
         far = lin * 10.0 ** rng.uniform(-3, 3, 400)
         x = np.concatenate([[lin], ulps, near, far])
-        got = np.array([kernels._db_below(float(v), lin, threshold_db) for v in x])
+        got = np.array([kernels.db_below(float(v), lin, threshold_db) for v in x])
         np.testing.assert_array_equal(got, _db(x) < threshold_db)
     # a value whose dB is exactly the threshold is not below it (10 log10(100) = 20 exactly)
-    assert not kernels._db_below(100.0, 100.0, 20.0)
+    assert not kernels.db_below(100.0, 100.0, 20.0)
     v = float(np.nextafter(100.0, 0.0))  # one ulp below: its dB value rounds to 20.0, not below either
-    assert kernels._db_below(v, 100.0, 20.0) == bool(10.0 * math.log10(v) < 20.0) is False
-    assert kernels._db_below(99.9999, 100.0, 20.0)
+    assert kernels.db_below(v, 100.0, 20.0) == bool(10.0 * math.log10(v) < 20.0) is False
+    assert kernels.db_below(99.9999, 100.0, 20.0)
 
 
 @pytest.mark.parametrize("model", [kernels.MODEL_PER_TABLE, kernels.MODEL_PER_TABLE_LOG, kernels.MODEL_THRESHOLD])
@@ -63,14 +63,14 @@ def test_success_of_ratio_equals_the_table_on_the_db_value(model: int) -> None:
     x = np.concatenate([ends, 10.0 ** rng.uniform(-3.0, 2.0, 5000), 10.0 ** (sinr_db / 10.0), [0.0, 1e-300, 1e300]])
     log_domain = model == kernels.MODEL_PER_TABLE_LOG
     for v in x:
-        got = kernels._success_of_ratio(float(v), model, sinr_db, per, lo, hi, thr_db, thr)
+        got = kernels.success_of_ratio(float(v), model, sinr_db, per, lo, hi, thr_db, thr)
         d = float(_db(np.array([v]))[0])
         if model == kernels.MODEL_THRESHOLD:
             want = 1.0 if d >= thr_db else 0.0
         else:
-            want = kernels._per_success(d, sinr_db, per, log_domain)
+            want = kernels.per_success(d, sinr_db, per, log_domain)
         assert got == want, (v, d, got, want)
-    assert kernels._success_of_ratio(math.nan, kernels.MODEL_PER_TABLE, sinr_db, per, lo, hi, thr_db, thr) == 0.0
+    assert kernels.success_of_ratio(math.nan, kernels.MODEL_PER_TABLE, sinr_db, per, lo, hi, thr_db, thr) == 0.0
 
 
 @pytest.mark.parametrize("offset_db", [0.0, -6.0, 3.0])
@@ -86,7 +86,7 @@ def test_sci_probability_equals_the_pscch_curve(offset_db: float, tolerances: An
     ends = [np.nextafter(e, d, dtype=np.float64) for e in (lo, hi) for d in (0.0, np.inf)] + [lo, hi]
     ends += [e * f for e in (lo, hi) for f in (1 - 1e-9, 1 + 1e-9, 1 - 2e-9, 1 + 2e-9)]
     ratios = np.concatenate([np.power(10.0, np.linspace(-4, 3, 2001)), np.array(ends), [0.0, np.inf]])
-    got = np.array([kernels._sci_probability(float(r), offset_db, lin, curve.bler, lo, hi) for r in ratios])
+    got = np.array([kernels.sci_probability(float(r), offset_db, lin, curve.bler, lo, hi) for r in ratios])
     # bit for bit: decoding_probability's arithmetic with the kernel's (libm's) log10 and pow, so the
     # shortcuts are checked to give exactly what the arithmetic would
     x = _db(ratios) + offset_db
@@ -98,7 +98,7 @@ def test_sci_probability_equals_the_pscch_curve(offset_db: float, tolerances: An
     with np.errstate(divide="ignore"):  # log10(0) = -inf: probability 0
         want = curve.decoding_probability(10.0 * np.log10(ratios) + offset_db)
     np.testing.assert_allclose(got, want, rtol=0.0, atol=tolerances.p_atol)
-    assert kernels._sci_probability(math.nan, offset_db, lin, curve.bler, lo, hi) == 0.0
+    assert kernels.sci_probability(math.nan, offset_db, lin, curve.bler, lo, hi) == 0.0
     assert want.min() == 0.0 and want.max() == 1.0 - curve.bler[-1]  # both shortcuts taken
 
 
@@ -110,7 +110,7 @@ def test_success_of_ratio_equals_the_shipped_curve(interpolation: str, tolerance
     lo, hi = 10.0 ** (curve.sinr_db[0] / 10.0), 10.0 ** (curve.sinr_db[-1] / 10.0)
     x = 10.0 ** np.linspace(-1.0, 2.0, 4001)  # -10 to 20 dB
     got = np.array(
-        [kernels._success_of_ratio(float(v), curve.kernel_model, curve.sinr_db, curve.per, lo, hi, 0.0, 1.0) for v in x]
+        [kernels.success_of_ratio(float(v), curve.kernel_model, curve.sinr_db, curve.per, lo, hi, 0.0, 1.0) for v in x]
     )
     # PerCurve.success's log-domain interpolation takes numpy's log and exp: to the tolerance of P
     np.testing.assert_allclose(got, curve.success(_db(x)), rtol=0.0, atol=tolerances.p_atol)
@@ -123,9 +123,9 @@ def test_interp_clamped_equals_np_interp() -> None:
     rng = np.random.default_rng(2)
     x = np.concatenate([xp, rng.uniform(0.0, 12.0, 3000), [np.nextafter(0.1, 0.0), np.nextafter(10.0, 11.0), -1.0]])
     want = np.interp(x, xp, fp, left=1.0, right=0.0)
-    got = np.array([kernels._interp_clamped(float(v), xp, fp, 1.0, 0.0) for v in x])
+    got = np.array([kernels.interp_clamped(float(v), xp, fp, 1.0, 0.0) for v in x])
     np.testing.assert_array_equal(got, want)
-    assert math.isnan(kernels._interp_clamped(math.nan, xp, fp, 1.0, 0.0))
+    assert math.isnan(kernels.interp_clamped(math.nan, xp, fp, 1.0, 0.0))
 
 
 @pytest.mark.parametrize("box", [(3000.0, np.inf), (2000.0, 1500.0), (np.inf, np.inf)])

@@ -1,0 +1,432 @@
+"""One period of the simulator's subframe loop, compiled: SCI decoding, sensing RSSI, PSSCH outcomes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from cv2x_marl.sim.kernels.per import (
+    LIN_MARGIN,
+    db_below,
+    interp_clamped,
+    success_of_ratio,
+)
+
+FloatArray = NDArray[np.float64]
+
+
+#: bytes of one tile's power-sum scratch in :func:`period_chunk` (N receivers x the tile's resources,
+#: float64; the tile's SCI maxima take as much again): one subframe per tile from about 820 vehicles with
+#: 5 subchannels (2**16 // (8 x 5 N)) (measured fastest at 2,000 and 10,000 vehicles, against 2-6 subframes); a small
+#: scenario runs a few tiles of many subframes
+CHUNK_TILE_BYTES = 2**16
+
+
+def chunk_tile_subframes(n: int, n_sub: int, rri: int, tile_bytes: int | None = None) -> int:
+    """Subframes per tile of :func:`period_chunk`: as many as keep the tile's scratch (``8 N n_sub`` bytes per
+    subframe) within ``tile_bytes`` (default :data:`CHUNK_TILE_BYTES`, read at the call), at least 1, at most
+    ``rri`` (one tile: the whole period)."""
+    budget = CHUNK_TILE_BYTES if tile_bytes is None else tile_bytes
+    return max(1, min(rri, budget // max(1, 8 * n * n_sub)))
+
+
+@njit(cache=True)
+def period_chunk(
+    rx: NDArray[np.int64],
+    tx: NDArray[np.int64],
+    distance_m: FloatArray,
+    rx_mw: FloatArray,
+    active: NDArray[np.bool_],
+    resource: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    n_res: int,
+    noise_mw: float,
+    link_rng: np.random.Generator,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    releasing: NDArray[np.bool_],
+    period_rssi_mw: FloatArray,
+    period_sci_mw: FloatArray,
+    bin_m: float,
+    n_bins: int,
+    n_causes: int,
+    subset: bool,
+    links: NDArray[np.int64],
+    total: FloatArray,
+    sci_rng: np.random.Generator,
+    sci_sinr_lin: FloatArray,
+    sci_bler: FloatArray,
+    sci_offset_db: float,
+    sci_gates_pssch: bool,
+    n_sub: int,
+    flat_inband_lin: float,
+    total_slot: FloatArray,
+    leakage: FloatArray,
+    tile_subframes: int,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int8],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+]:
+    """One chunk of the simulator's period (``Simulator._chunk``) in compiled passes over the links, tile by tile.
+
+    Pass 1: the power each receiver gets on each resource from the active transmitters,
+    ``total[rx * n_res + resource[tx]] += rx_mw`` in link order (``np.bincount``'s additions, so equal
+    to the last bit; flat in-band: the same per receiver and subframe). Pass 2, for each link whose
+    transmitter is active, in order: interference ``I = max(total - S, 0)`` on the link's resource,
+    ``SINR = S / (I + N)``, one uniform ``u`` from ``link_rng`` (the numpy path's
+    ``rng.link.random(L)``, drawn in the same order: the same numbers), success ``P`` (``model``:
+    per_table linear / log on the dB SINR, threshold) and ``P0`` (on the SNR), outcome ``u < P`` and
+    cause (half duplex, below sensitivity, propagation ``u >= P0``, collision), the strongest decodable
+    SCI per receiver and resource (``period_sci_mw``, linear: the sensing takes its RSRP in dBm when it
+    reads it; a releasing UE's SCI reserves nothing, TS 36.213 14.1.1.6) and the PRR accumulators of
+    :class:`cv2x_marl.sim.metrics.PrrAccumulator`. Last, ``total`` (and the 3gpp leakage) is added to the
+    period's S-RSSI ``period_rssi_mw`` and the scratches are zeroed. The dB values (``10 log10``: libm's, equal to
+    numpy's on the CPUs tested) are taken only where a comparison needs them (:func:`db_below`,
+    :func:`success_of_ratio`): equal to the numpy path (tested), at a fraction of the cost when most
+    links are far below the PER table.
+
+    Tiles: every sum of a key (receiver, resource) comes from transmitters on that resource, hence from
+    one subframe, and the flat model's sums and the 3gpp leakage read only the same receiver's subframe.
+    So the links are gathered by their transmitter's tile of ``tile_subframes`` subframes (a stable
+    counting sort: increasing link order within a tile), the uniforms drawn in link order as they are
+    gathered, and passes 1 and 2 and the S-RSSI / SCI commit run tile by tile on an ``N x tile``
+    scratch (the first entries of ``total``, cache-sized at corridor scale instead of ``N x n_res``):
+    each key's additions happen in the same order as in one pass over the chunk, so the same bits.
+    A last pass in link order writes the outputs and sums the PRR accumulators (float sums in link
+    order). Memory beyond the outputs: 9 B per link (the tile-ordered ``P`` and cause; the other
+    tile-ordered inputs live in the outputs' arrays until that pass) and ``8 N tile n_sub`` bytes.
+
+    Args:
+        rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
+            power (mW, faded).
+        active, resource, slot, releasing: [N] per vehicle.
+        n_res: resources per period.
+        noise_mw: noise power, mW.
+        link_rng: the simulator's ``link`` stream (advanced by one draw per active link).
+        model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
+        per_sinr_db, per: [K] the PER table.
+        threshold_db: SINR threshold of the threshold model, dB.
+        sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
+        period_rssi_mw: [N * n_res] the period's S-RSSI sums, updated in place.
+        period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW), in place.
+        bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
+        subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
+            active, increasing (from :func:`active_links`: a chunk of a few transmitters visits only their
+            links, possibly none); without, every link is visited and checked against ``active``.
+        total: [N * n_res] zeros, a scratch for the power sums (the first ``N * tile_subframes * n_sub``
+            entries used): left zero again on return.
+        sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
+            draw per active link, as ``Simulator._sci_draws``), the PSCCH BLER curve (points in linear
+            SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
+            only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
+        sci_gates_pssch: ``sps.sci_gates_pssch``: a link succeeds only if its SCI decodes too (``P`` times
+            the SCI's decoding probability; ``P0`` likewise with the SCI at the SNR).
+        n_sub: subchannels per subframe (resource ``r`` is slot ``r // n_sub``, subchannel ``r % n_sub``).
+        flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
+            the power of the subframe's other subchannels adds to the interference); 0: none.
+        total_slot: [N * RRI] zeros, the scratch for the flat model's power per receiver and subframe
+            (summed link by link, as the numpy path's ``bincount``): left zero again on return.
+        leakage: [n_sub, n_sub] the 3gpp in-band leakage ``M[victim, interferer]``
+            (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
+            ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
+            ``Simulator._chunk``), adds to the interference and to the S-RSSI.
+        tile_subframes: subframes per tile (:func:`chunk_tile_subframes`), >= 1; any value gives the same
+            results.
+
+    Returns:
+        ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n, bin_decoded,
+        bin_expected`` [n_bins], ``bin_causes`` [n_causes * n_bins] (cause-major), ``node_n,
+        node_decoded, node_expected`` [N].
+    """
+    n = active.shape[0]
+    n_visit = links.shape[0] if subset else rx.shape[0]
+    rri = n_res // n_sub
+    n_tiles = (rri + tile_subframes - 1) // tile_subframes
+    width = tile_subframes * n_sub  # resources per tile (the last tile may hold fewer)
+    # per vehicle (no division per link): its tile (-1: not transmitting in the chunk), its resource,
+    # subchannel and subframe within the tile
+    veh = np.full((n, 4), -1, dtype=np.int32)
+    for t in range(n):
+        if active[t]:
+            g = resource[t] // width
+            veh[t, 0] = g
+            veh[t, 1] = resource[t] - g * width
+            veh[t, 2] = resource[t] % n_sub
+            veh[t, 3] = resource[t] // n_sub - g * tile_subframes
+    # the chunk's active links counted per tile (the transmitter's subframe // tile_subframes) ...
+    tile_start = np.zeros(n_tiles + 1, dtype=np.int64)
+    for q in range(n_visit):
+        k = links[q] if subset else q
+        g = veh[tx[k], 0]
+        if g >= 0:
+            tile_start[g + 1] += 1
+    for g in range(n_tiles):
+        tile_start[g + 1] += tile_start[g]
+    n_links = tile_start[n_tiles]
+    out_tx = np.empty(n_links, dtype=np.int64)
+    out_rx = np.empty(n_links, dtype=np.int64)
+    p_out = np.empty(n_links)
+    cause_out = np.empty(n_links, dtype=np.int8)
+    # ... and gathered tile by tile (a stable counting sort: increasing link order within a tile), with
+    # the uniforms drawn in link order. The outputs' memory holds the tile-ordered inputs until the
+    # final pass writes the outputs: receiver and transmitter (int32 pairs) in out_tx, power in p_out,
+    # the SCI uniform in out_rx; the PSSCH uniform, then P, and the cause in their own arrays.
+    tile_rt = out_tx.view(np.int32)
+    tile_s = p_out
+    tile_u_sci = out_rx.view(np.float64)
+    tile_u = np.empty(n_links)  # the PSSCH uniform, then P
+    tile_cause = np.empty(n_links, dtype=np.int8)
+    sci_sinr = sci_bler.shape[0] > 0
+    fill = tile_start[:n_tiles].copy()
+    for q in range(n_visit):
+        k = links[q] if subset else q
+        t = tx[k]
+        g = veh[t, 0]
+        if g >= 0:
+            j = fill[g]
+            fill[g] = j + 1
+            tile_rt[2 * j] = rx[k]
+            tile_rt[2 * j + 1] = t
+            tile_s[j] = rx_mw[k]
+            tile_u[j] = link_rng.random()
+            if sci_sinr:  # the SCI draw is taken for every link, as the numpy path's
+                tile_u_sci[j] = sci_rng.random()
+    flat = flat_inband_lin > 0.0
+    three_gpp = leakage.shape[0] > 0
+    k_per = per_sinr_db.shape[0]
+    lin_lo = 10.0 ** (per_sinr_db[0] / 10.0)
+    lin_hi = 10.0 ** (per_sinr_db[k_per - 1] / 10.0)
+    thr_lin = 10.0 ** (threshold_db / 10.0)
+    sens_lin = 10.0 ** (sensitivity_dbm / 10.0)  # 0.0 for -inf
+    sci_lo, sci_hi = 0.0, 0.0  # the PSCCH curve's ends as linear SINR before the offset
+    if sci_sinr:
+        sci_lo = sci_sinr_lin[0] / 10.0 ** (sci_offset_db / 10.0)
+        sci_hi = sci_sinr_lin[sci_sinr_lin.shape[0] - 1] / 10.0 ** (sci_offset_db / 10.0)
+    # a tile's scratches: the power sums per receiver and resource of the tile (the first N x width
+    # entries of total), the flat model's per receiver and subframe (of total_slot), the SCI maxima
+    sum_t = total[: n * width]
+    slot_t = total_slot[: n * tile_subframes] if flat else total_slot
+    sci_t = np.zeros(n * width)
+    leak_row = np.empty(n_sub)
+    for g in range(n_tiles):
+        lo, hi = tile_start[g], tile_start[g + 1]
+        if lo == hi:
+            continue
+        res0 = g * width  # the tile's first resource
+        n_slots = min(rri, (g + 1) * tile_subframes) - g * tile_subframes
+        # pass 1: the sums, in link order
+        for j in range(lo, hi):
+            r = tile_rt[2 * j]
+            t = tile_rt[2 * j + 1]
+            sum_t[r * width + veh[t, 1]] += tile_s[j]
+            if flat:
+                slot_t[r * tile_subframes + veh[t, 3]] += tile_s[j]
+        # pass 2: each link's outcome
+        for j in range(lo, hi):
+            r = tile_rt[2 * j]
+            t = tile_rt[2 * j + 1]
+            sub = veh[t, 2]
+            key = r * width + veh[t, 1]
+            s = tile_s[j]
+            i_mw = max(sum_t[key] - s, 0.0)
+            if flat:
+                i_mw = i_mw + flat_inband_lin * max(slot_t[r * tile_subframes + veh[t, 3]] - sum_t[key], 0.0)
+            if three_gpp:
+                i_mw = i_mw + _leak_mw(sum_t, key - sub, leakage, sub, n_sub)
+            u = tile_u[j]
+            ratio = s / (i_mw + noise_mw)
+            p = success_of_ratio(ratio, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
+            outcome = u < p
+            sci_decoded = True
+            u_sci = 0.0
+            if sci_sinr:
+                p_sci = sci_probability(ratio, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi)
+                u_sci = tile_u_sci[j]
+                sci_decoded = u_sci < p_sci
+                if sci_gates_pssch:  # the PSSCH needs its SCI: both decode, P the product
+                    outcome = outcome and sci_decoded
+                    p = p * p_sci
+            would0 = True  # read only when the link fails: then P0 decides propagation or collision
+            if not outcome:
+                p0 = success_of_ratio(s / noise_mw, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
+                would0 = u < p0
+                if sci_gates_pssch:
+                    would0 = would0 and u_sci < sci_probability(
+                        s / noise_mw, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi
+                    )
+            hd = slot[r] == slot[t]
+            below = sensitivity_dbm > -np.inf and db_below(s, sens_lin, sensitivity_dbm)
+            fail = hd or below
+            if fail:
+                p = 0.0
+                outcome = False
+            c = 0
+            if not outcome:
+                c = 4 if would0 else 3  # collision, propagation
+            if below:
+                c = 2
+            if hd:
+                c = 1
+            if not fail and not releasing[t] and sci_decoded and s > sci_t[key]:
+                sci_t[key] = s
+            tile_u[j] = p
+            tile_cause[j] = c
+        # the tile's S-RSSI and SCI maxima into the period's, the scratches zeroed again: a tile with fewer
+        # links than receiver-subframes through its links (each receiver's subframe once), a larger one
+        # by a scan of the scratches in order
+        if hi - lo < n * n_slots:
+            for j in range(lo, hi):
+                r = tile_rt[2 * j]
+                t = tile_rt[2 * j + 1]
+                sub = veh[t, 2]
+                key = r * width + veh[t, 1]
+                if flat:
+                    slot_t[r * tile_subframes + veh[t, 3]] = 0.0
+                _commit_rssi(
+                    sum_t,
+                    key - sub,
+                    period_rssi_mw,
+                    r * n_res + res0 + veh[t, 1] - sub,
+                    leakage,
+                    n_sub,
+                    three_gpp,
+                    leak_row,
+                )
+                if sci_t[key] > period_sci_mw[r * n_res + res0 + veh[t, 1]]:
+                    period_sci_mw[r * n_res + res0 + veh[t, 1]] = sci_t[key]
+                sci_t[key] = 0.0
+        else:
+            for r in range(n):
+                for a in range(n_slots):
+                    _commit_rssi(
+                        sum_t,
+                        r * width + a * n_sub,
+                        period_rssi_mw,
+                        r * n_res + res0 + a * n_sub,
+                        leakage,
+                        n_sub,
+                        three_gpp,
+                        leak_row,
+                    )
+                for e in range(n_slots * n_sub):
+                    if sci_t[r * width + e] > period_sci_mw[r * n_res + res0 + e]:
+                        period_sci_mw[r * n_res + res0 + e] = sci_t[r * width + e]
+                    sci_t[r * width + e] = 0.0
+            if flat:
+                slot_t[: n * tile_subframes] = 0.0
+    # the outputs and the PRR accumulators in link order (the tiles' outputs merged back: the float sums
+    # in the order of the numpy path)
+    bin_n = np.zeros(n_bins, dtype=np.int64)
+    bin_dec = np.zeros(n_bins, dtype=np.int64)
+    bin_exp = np.zeros(n_bins)
+    bin_causes = np.zeros(n_causes * n_bins, dtype=np.int64)
+    node_n = np.zeros(n, dtype=np.int64)
+    node_dec = np.zeros(n, dtype=np.int64)
+    node_exp = np.zeros(n)
+    fill[:] = tile_start[:n_tiles]
+    m = 0
+    for q in range(n_visit):
+        k = links[q] if subset else q
+        t = tx[k]
+        g = veh[t, 0]
+        if g < 0:
+            continue
+        j = fill[g]
+        fill[g] = j + 1
+        p = tile_u[j]
+        c = tile_cause[j]
+        outcome = c == 0
+        out_tx[m] = t
+        out_rx[m] = rx[k]
+        p_out[m] = p
+        cause_out[m] = c
+        b = math.floor(distance_m[k] / bin_m)  # numba: an int64
+        if b < n_bins:
+            bin_n[b] += 1
+            bin_dec[b] += outcome
+            bin_exp[b] += p
+            bin_causes[c * n_bins + b] += 1
+        if c != 1:
+            node_n[t] += 1
+            node_dec[t] += outcome
+            node_exp[t] += p
+        m += 1
+    return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+
+
+@njit(cache=True)
+def sci_probability(
+    ratio: float, offset_db: float, sinr_lin: FloatArray, bler: FloatArray, ratio_lo: float, ratio_hi: float
+) -> float:
+    """``1 - BLER(10 log10(ratio) + offset)`` of the PSCCH curve (points ``sinr_lin`` in linear units),
+    :meth:`cv2x_marl.sim.link.PscchCurve.decoding_probability`'s arithmetic (0 for NaN). Outside the
+    curve, the constant that arithmetic gives (0 below: BLER 1; ``1 - bler[-1]`` above) without the
+    logarithm and the power: ``ratio_lo``, ``ratio_hi`` are the curve's ends as linear SINR before the
+    offset (``sinr_lin[0] / 10^(offset / 10)``, ``sinr_lin[-1] / 10^(offset / 10)``), and within
+    :data:`LIN_MARGIN` of them the exact arithmetic decides."""
+    if ratio < ratio_lo * (1.0 - LIN_MARGIN):
+        return 0.0
+    if ratio > ratio_hi * (1.0 + LIN_MARGIN):
+        return 1.0 - bler[-1]
+    x = 10.0 * math.log10(ratio) + offset_db
+    if math.isnan(x):
+        return 0.0
+    return 1.0 - interp_clamped(10.0 ** (x / 10.0), sinr_lin, bler, 1.0, bler[-1])
+
+
+@njit(cache=True)
+def _commit_rssi(
+    total: FloatArray,
+    base: int,
+    period_rssi_mw: FloatArray,
+    rssi_base: int,
+    leakage: FloatArray,
+    n_sub: int,
+    three_gpp: bool,
+    leak_row: FloatArray,
+) -> None:
+    """Add one receiver's subframe (``total[base : base + n_sub]``) to the period's S-RSSI
+    (``period_rssi_mw[rssi_base : rssi_base + n_sub]``) and zero it: ``rssi + total`` entry by entry, then
+    (3gpp) ``+ leak`` into every subchannel of a subframe that heard something (the numpy path's
+    ``rssi += total; rssi += leak``: the same bits); ``leak_row`` [n_sub] is scratch."""
+    if three_gpp:
+        heard = False
+        for v in range(n_sub):
+            heard = heard or total[base + v] != 0.0
+        if not heard:
+            return
+        for v in range(n_sub):
+            leak_row[v] = _leak_mw(total, base, leakage, v, n_sub)
+        for v in range(n_sub):
+            period_rssi_mw[rssi_base + v] = (period_rssi_mw[rssi_base + v] + total[base + v]) + leak_row[v]
+            total[base + v] = 0.0
+        return
+    for v in range(n_sub):
+        if total[base + v] != 0.0:
+            period_rssi_mw[rssi_base + v] += total[base + v]
+            total[base + v] = 0.0
+
+
+@njit(cache=True)
+def _leak_mw(total: FloatArray, base: int, leakage: FloatArray, victim: int, n_sub: int) -> float:
+    """In-band leakage into subchannel ``victim`` of one receiver's subframe: ``sum_i M[victim, i]
+    total[base + i]``, summed in ``i`` order (``Simulator._inband_leakage``'s arithmetic)."""
+    acc = total[base] * leakage[victim, 0]
+    for i in range(1, n_sub):
+        acc = acc + total[base + i] * leakage[victim, i]
+    return acc
