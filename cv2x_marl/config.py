@@ -20,13 +20,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import types
-import typing
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from cv2x_marl.schema import ConfigError, Section, key_field, markdown_rows, show_text, show_value
 
 __all__ = [
     "PRESETS",
@@ -53,146 +52,6 @@ __all__ = [
 ]
 
 
-class ConfigError(ValueError):
-    """A configuration key is unknown, has the wrong type, or is out of range."""
-
-
-#: characters of a value an error message shows before it cuts the value short
-SHOWN_CHARS = 60
-
-
-def show_text(text: str) -> str:
-    """``text`` unquoted for an error message: its first :data:`SHOWN_CHARS` characters and its length
-    when it is longer (``abc... (100,000 characters)``)."""
-    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}... ({len(text):,} characters)"
-
-
-def show_value(value: Any) -> str:
-    """``value`` for an error message, never longer than about :data:`SHOWN_CHARS` characters.
-
-    A long string shows its first characters and its length (``'xxxx...' ... (100000 characters)``),
-    a huge integer its number of digits, a list or mapping its first items: a large or deeply shared
-    value (a YAML alias bomb) is never formatted in full.
-    """
-    import reprlib
-    import sys
-
-    if isinstance(value, str):
-        if len(value) <= SHOWN_CHARS:
-            return repr(value)
-        return f"{value[:SHOWN_CHARS]!r}... ({len(value):,} characters)"
-    if isinstance(value, bytes | bytearray):
-        return show_value(value.decode("utf-8", "replace"))
-    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 3 * SHOWN_CHARS:
-        limit = sys.get_int_max_str_digits()
-        if limit and value.bit_length() > 3.33 * limit:
-            return f"an integer of more than {limit:,} digits"
-        return f"an integer of {len(str(abs(value))):,} digits"
-    short = reprlib.Repr()
-    short.maxlevel, short.maxstring, short.maxother, short.maxlong = 3, SHOWN_CHARS, SHOWN_CHARS, SHOWN_CHARS
-    short.maxlist = short.maxtuple = short.maxdict = short.maxset = 6
-    try:
-        text = short.repr(value)
-    except ValueError:  # an integer inside it too long to convert to text
-        return f"a {type(value).__name__}"
-    return text if len(text) <= SHOWN_CHARS + 20 else f"{text[:SHOWN_CHARS]}... (cut short)"
-
-
-def _key(
-    default: Any,
-    doc: str,
-    unit: str = "",
-    lo: float | None = None,
-    hi: float | None = None,
-    choices: tuple[str, ...] | None = None,
-    lo_open: bool = False,
-    allowed: str | None = None,
-) -> Any:
-    """A dataclass field carrying its documentation and its allowed range (``allowed``: the
-    allowed values in words, for free-text keys such as file paths)."""
-    meta = {"doc": doc, "unit": unit, "lo": lo, "hi": hi, "choices": choices, "lo_open": lo_open, "allowed": allowed}
-    return field(default=default, metadata=meta)
-
-
-def _allowed(meta: Mapping[str, Any]) -> str:
-    if meta.get("allowed"):
-        return str(meta["allowed"])
-    if meta["choices"]:
-        return " | ".join(meta["choices"])
-    lo, hi = meta["lo"], meta["hi"]
-    left = "(" if meta["lo_open"] else "["
-    lo_s = "-inf" if lo is None else f"{lo:g}"
-    hi_s = "inf" if hi is None else f"{hi:g}"
-    return f"{left}{lo_s}, {hi_s}]"
-
-
-def _base_type(tp: Any) -> tuple[type, bool]:
-    """(scalar type, optional) for a field annotation such as ``float | None``."""
-    if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        return args[0], True
-    return tp, False
-
-
-@dataclass(frozen=True)
-class Section:
-    """Base class: validates every field against its metadata after construction."""
-
-    _name = ""
-
-    def __post_init__(self) -> None:
-        hints = typing.get_type_hints(type(self))
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            key = f"{self._name}.{f.name}"
-            tp, optional = _base_type(hints[f.name])
-            if value is None:
-                if not optional:
-                    raise ConfigError(f"{key}: a value is required (allowed: {_allowed(f.metadata)})")
-                continue
-            value = _coerce(key, value, tp, f.metadata)
-            object.__setattr__(self, f.name, value)
-        self._check()
-
-    def _check(self) -> None:
-        """Cross-key checks of the section (overridden where needed)."""
-
-
-def _coerce(key: str, value: Any, tp: type, meta: Mapping[str, Any]) -> Any:
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true or false, got {show_value(value)}")
-        return value
-    if tp is int:
-        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
-            value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: expected an integer in {_allowed(meta)}, got {show_value(value)}")
-        # a Python int of any size compares exactly with the float bounds below (no OverflowError)
-    elif tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{key}: expected a number in {_allowed(meta)}, got {show_value(value)}")
-        try:
-            value = float(value)
-        except OverflowError:  # an integer beyond the float range (above about 1.8e308)
-            raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}") from None
-        if not math.isfinite(value):
-            raise ConfigError(f"{key}: expected a finite number in {_allowed(meta)}, got {show_value(value)}")
-    elif tp is str:
-        if not isinstance(value, str):
-            what = _allowed(meta) if meta.get("allowed") else f"one of {_allowed(meta)}"
-            raise ConfigError(f"{key}: expected {what}, got {show_value(value)}")
-        if meta["choices"] and value not in meta["choices"]:
-            raise ConfigError(f"{key}: {show_value(value)} is not allowed; allowed values: {_allowed(meta)}")
-        return value
-    lo, hi = meta["lo"], meta["hi"]
-    if lo is not None and (value < lo or (meta["lo_open"] and value == lo)):
-        raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}")
-    if hi is not None and value > hi:
-        raise ConfigError(f"{key}: {show_value(value)} is out of range; allowed range: {_allowed(meta)}")
-    return value
-
-
 #: the most vehicles a scenario may have (also the cap on density x road length)
 MAX_VEHICLES = 100_000
 
@@ -202,15 +61,17 @@ class RoadConfig(Section):
     """Road geometry (paper Sec. 3, Fig. 1; 3GPP TR 36.885 Annex A.1.2)."""
 
     _name = "road"
-    kind: str = _key("grid", "Road layout: Manhattan grid (paper) or straight highway", choices=("grid", "highway"))
-    length_m: float = _key(450.0, "Grid: side of the square region; highway: road length", "m", 50.0, 1e6)
-    n_roads_per_axis: int = _key(4, "Grid: number of horizontal (and of vertical) two-way roads", "", 1, 50)
-    lanes_per_direction: int = _key(1, "Lanes in each direction of every road", "", 1, 8)
-    lane_width_m: float = _key(3.5, "Lane width", "m", 1.0, 10.0)
-    p_straight: float = _key(0.5, "Grid: probability of going straight at a crossing", "", 0.0, 1.0)
-    p_left: float = _key(0.25, "Grid: probability of turning left at a crossing", "", 0.0, 1.0)
-    p_right: float = _key(0.25, "Grid: probability of turning right at a crossing", "", 0.0, 1.0)
-    wrap_distances: bool = _key(
+    kind: str = key_field(
+        "grid", "Road layout: Manhattan grid (paper) or straight highway", choices=("grid", "highway")
+    )
+    length_m: float = key_field(450.0, "Grid: side of the square region; highway: road length", "m", 50.0, 1e6)
+    n_roads_per_axis: int = key_field(4, "Grid: number of horizontal (and of vertical) two-way roads", "", 1, 50)
+    lanes_per_direction: int = key_field(1, "Lanes in each direction of every road", "", 1, 8)
+    lane_width_m: float = key_field(3.5, "Lane width", "m", 1.0, 10.0)
+    p_straight: float = key_field(0.5, "Grid: probability of going straight at a crossing", "", 0.0, 1.0)
+    p_left: float = key_field(0.25, "Grid: probability of turning left at a crossing", "", 0.0, 1.0)
+    p_right: float = key_field(0.25, "Grid: probability of turning right at a crossing", "", 0.0, 1.0)
+    wrap_distances: bool = key_field(
         False,
         "Measure distances on the torus (minimum image). False: plain Euclidean distances in the "
         "region (the paper's RoI, with edge effects); mobility always wraps around",
@@ -230,8 +91,8 @@ class VehiclesConfig(Section):
     """Vehicle population and speeds."""
 
     _name = "vehicles"
-    n_vehicles: int = _key(21, "Number of vehicles (ignored when density_veh_per_m is set)", "", 2, MAX_VEHICLES)
-    density_veh_per_m: float | None = _key(
+    n_vehicles: int = key_field(21, "Number of vehicles (ignored when density_veh_per_m is set)", "", 2, MAX_VEHICLES)
+    density_veh_per_m: float | None = key_field(
         None,
         "Vehicles per metre of road, all lanes and directions together; null: use n_vehicles",
         "veh/m",
@@ -239,14 +100,14 @@ class VehiclesConfig(Section):
         10.0,
         lo_open=True,
     )
-    placement: str = _key(
+    placement: str = key_field(
         "random",
         "random: uniform position on a random lane; uniform: equal spacing along each lane",
         choices=("random", "uniform"),
     )
-    speed_min_mps: float = _key(4.17, "Lowest vehicle speed (drawn uniformly per vehicle)", "m/s", 0.0, 100.0)
-    speed_max_mps: float = _key(16.67, "Highest vehicle speed", "m/s", 0.0, 100.0)
-    mobility: str = _key(
+    speed_min_mps: float = key_field(4.17, "Lowest vehicle speed (drawn uniformly per vehicle)", "m/s", 0.0, 100.0)
+    speed_max_mps: float = key_field(16.67, "Highest vehicle speed", "m/s", 0.0, 100.0)
+    mobility: str = key_field(
         "model",
         "Where vehicle motion comes from: model: the random-speed lane model with wrap-around; sumo: a SUMO "
         "scenario stepped in lockstep through libsumo (vehicles.sumo_config, or one generated from the road "
@@ -254,19 +115,19 @@ class VehiclesConfig(Section):
         "N vehicles in the network (docs/mobility.md; the 'sumo' extra)",
         choices=("model", "sumo", "trace"),
     )
-    sumo_config: str | None = _key(
+    sumo_config: str | None = key_field(
         None,
         "vehicles.mobility=sumo: the SUMO scenario (.sumocfg) to run; null: generate one from the road section "
         "(road.kind=grid; random-walk demand of N vehicles at speeds in [speed_min_mps, speed_max_mps])",
         allowed="path to a .sumocfg file, or null",
     )
-    trace_file: str | None = _key(
+    trace_file: str | None = key_field(
         None,
         "vehicles.mobility=trace: a SUMO FCD trace (XML from --fcd-output, or parquet with columns time, id, "
         "x, y, angle, speed), interpolated linearly to traffic.rri_ms",
         allowed="path to an .xml or .parquet file, or null",
     )
-    population: str = _key(
+    population: str = key_field(
         "fixed",
         "fixed: the same N vehicles for the whole run (sumo and trace: the first N in the network); open: "
         "vehicles enter and leave the scenario (sumo and trace only): an entering vehicle listens for one "
@@ -275,7 +136,7 @@ class VehiclesConfig(Section):
         "bounds how many may be present at once (docs/mobility.md)",
         choices=("fixed", "open"),
     )
-    capacity: int | None = _key(
+    capacity: int | None = key_field(
         None,
         "vehicles.population=open: the most vehicles present at once (the simulator's array size); null: "
         "2 x the resolved vehicle count + 16",
@@ -283,7 +144,7 @@ class VehiclesConfig(Section):
         2,
         MAX_VEHICLES,
     )
-    sumo_begin_s: float | None = _key(
+    sumo_begin_s: float | None = key_field(
         None,
         "SUMO time at which the run starts (sumo and trace; the scenario is stepped until then); null: 0 with "
         "population=fixed, road.length_m / vehicles.speed_min_mps (a slow vehicle crossing the region once, so the "
@@ -323,15 +184,15 @@ class RadioConfig(Section):
     """Transmitter and receiver radio parameters (paper Table 1)."""
 
     _name = "radio"
-    tx_power_dbm: float = _key(26.0, "Transmit power s (paper Table 1)", "dBm", -30.0, 46.0)
-    carrier_hz: float = _key(2.0e9, "Carrier frequency c (eq. 4; WINNER+ B1 valid 2-6 GHz)", "Hz", 1e8, 1e11)
-    noise_dbm: float = _key(
+    tx_power_dbm: float = key_field(26.0, "Transmit power s (paper Table 1)", "dBm", -30.0, 46.0)
+    carrier_hz: float = key_field(2.0e9, "Carrier frequency c (eq. 4; WINNER+ B1 valid 2-6 GHz)", "Hz", 1e8, 1e11)
+    noise_dbm: float = key_field(
         -112.45, "Noise power n_p over one subchannel, before the noise figure (paper Table 1)", "dBm", -200.0, 0.0
     )
-    noise_figure_db: float = _key(9.0, "Receiver noise figure (added to noise_dbm)", "dB", 0.0, 30.0)
-    tx_antenna_gain_dbi: float = _key(3.0, "Transmit antenna gain (TR 36.885: 3 dBi)", "dBi", -20.0, 30.0)
-    rx_antenna_gain_dbi: float = _key(3.0, "Receive antenna gain (TR 36.885: 3 dBi)", "dBi", -20.0, 30.0)
-    sensitivity_dbm: float | None = _key(
+    noise_figure_db: float = key_field(9.0, "Receiver noise figure (added to noise_dbm)", "dB", 0.0, 30.0)
+    tx_antenna_gain_dbi: float = key_field(3.0, "Transmit antenna gain (TR 36.885: 3 dBi)", "dBi", -20.0, 30.0)
+    rx_antenna_gain_dbi: float = key_field(3.0, "Receive antenna gain (TR 36.885: 3 dBi)", "dBi", -20.0, 30.0)
+    sensitivity_dbm: float | None = key_field(
         None, "Receptions with a received power below this fail; null: no floor", "dBm", -200.0, 0.0
     )
 
@@ -341,40 +202,42 @@ class ChannelConfig(Section):
     """Propagation: path loss (eq. 3 or WINNER+ B1), shadowing, fast fading."""
 
     _name = "channel"
-    pathloss: str = _key(
+    pathloss: str = key_field(
         "winner_b1",
         "Path-loss model: power law of eq. 3, or WINNER+ B1 (TR 36.885)",
         choices=("power_law", "winner_b1"),
     )
-    power_law_k_db: float | None = _key(
+    power_law_k_db: float | None = key_field(
         None, "Eq. 3 gain K at d0 in dB (negative); null: free-space gain at d0 for the carrier", "dB", -200.0, 0.0
     )
-    power_law_d0_m: float = _key(1.0, "Eq. 3 reference distance d0", "m", 0.01, 1000.0, lo_open=True)
-    power_law_exponent: float = _key(2.0, "Eq. 3 exponent omega (2: free space)", "", 1.0, 8.0)
-    effective_height_m: float = _key(
+    power_law_d0_m: float = key_field(1.0, "Eq. 3 reference distance d0", "m", 0.01, 1000.0, lo_open=True)
+    power_law_exponent: float = key_field(2.0, "Eq. 3 exponent omega (2: free space)", "", 1.0, 8.0)
+    effective_height_m: float = key_field(
         1.5,
         "WINNER+ B1 effective antenna height h' of both ends (implementations use 0.5 or 1.5)",
         "m",
         0.1,
         10.0,
     )
-    min_distance_m: float = _key(3.0, "Distances below this are clipped for path loss (TR 36.885)", "m", 0.1, 100.0)
-    los: str = _key(
+    min_distance_m: float = key_field(
+        3.0, "Distances below this are clipped for path loss (TR 36.885)", "m", 0.1, 100.0
+    )
+    los: str = key_field(
         "geometry", "LOS/NLOS from the grid geometry (same street = LOS), or LOS always", choices=("geometry", "always")
     )
-    shadowing_std_db: float = _key(3.0, "Log-normal shadowing std in LOS (0 disables shadowing)", "dB", 0.0, 20.0)
-    shadowing_nlos_std_db: float = _key(4.0, "Log-normal shadowing std in NLOS", "dB", 0.0, 20.0)
-    shadowing_decorrelation_m: float = _key(
+    shadowing_std_db: float = key_field(3.0, "Log-normal shadowing std in LOS (0 disables shadowing)", "dB", 0.0, 20.0)
+    shadowing_nlos_std_db: float = key_field(4.0, "Log-normal shadowing std in NLOS", "dB", 0.0, 20.0)
+    shadowing_decorrelation_m: float = key_field(
         10.0, "Shadowing decorrelation distance (10 urban, 25 highway)", "m", 0.1, 1e4, lo_open=True
     )
-    shadowing_correlation: str = _key(
+    shadowing_correlation: str = key_field(
         "pair_distance",
         "What the shadowing of a pair decorrelates with, rho = exp(-D / shadowing_decorrelation_m): pair_distance: "
         "D = the change of the pair's distance since its last update (TR 36.885 A.1.4; the default); travelled: D "
         "= the sum of the distances both vehicles travelled (the paper presets' simplification)",
         choices=("travelled", "pair_distance"),
     )
-    fading: str = _key(
+    fading: str = key_field(
         "none", "Fast fading per transmission: none or Rayleigh (|h|^2 ~ Exp(1))", choices=("none", "rayleigh")
     )
 
@@ -384,11 +247,11 @@ class TrafficConfig(Section):
     """Periodic packet generation."""
 
     _name = "traffic"
-    rri_ms: int = _key(100, "Resource reservation interval = packet period (1 subframe = 1 ms)", "ms", 20, 1000)
-    packet_bytes: int = _key(
+    rri_ms: int = key_field(100, "Resource reservation interval = packet period (1 subframe = 1 ms)", "ms", 20, 1000)
+    packet_bytes: int = key_field(
         190, "Packet size (selects the PER curve family; one subchannel per packet)", "B", 1, 10000
     )
-    synchronous: bool = _key(
+    synchronous: bool = key_field(
         True,
         "All vehicles generate their packets in the same subframe of each period, so all select from "
         "the same selection window (the paper's pool of 8 subframes x 2 subchannels); false: random offset",
@@ -400,31 +263,35 @@ class SpsConfig(Section):
     """Sensing-based semi-persistent scheduling (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1)."""
 
     _name = "sps"
-    n_subchannels: int = _key(2, "Subchannels per subframe (paper Table 1: 2)", "", 1, 50)
-    subchannel_rbs: int = _key(10, "Resource blocks per subchannel (RSRP is per resource element)", "RB", 1, 100)
-    t1_subframes: int = _key(1, "Selection window start T1 after packet generation", "subframes", 1, 4)
-    selection_window_subframes: int = _key(
+    n_subchannels: int = key_field(2, "Subchannels per subframe (paper Table 1: 2)", "", 1, 50)
+    subchannel_rbs: int = key_field(10, "Resource blocks per subchannel (RSRP is per resource element)", "RB", 1, 100)
+    t1_subframes: int = key_field(1, "Selection window start T1 after packet generation", "subframes", 1, 4)
+    selection_window_subframes: int = key_field(
         8, "Selection window length T2 - T1 + 1 (paper Table 1: 8)", "subframes", 1, 1000
     )
-    sensing_window_ms: int = _key(1000, "Sensing window over which S-RSSI is averaged", "ms", 100, 10000)
-    rsrp_threshold_dbm: float = _key(-110.0, "Initial PSSCH-RSRP exclusion threshold (per RE)", "dBm", -140.0, 0.0)
-    threshold_step_db: float = _key(3.0, "Threshold increase while too few candidates remain", "dB", 0.1, 20.0)
-    min_candidate_fraction: float = _key(0.2, "Share of candidates that must survive exclusion", "", 0.01, 1.0)
-    selection: str = _key(
+    sensing_window_ms: int = key_field(1000, "Sensing window over which S-RSSI is averaged", "ms", 100, 10000)
+    rsrp_threshold_dbm: float = key_field(-110.0, "Initial PSSCH-RSRP exclusion threshold (per RE)", "dBm", -140.0, 0.0)
+    threshold_step_db: float = key_field(3.0, "Threshold increase while too few candidates remain", "dB", 0.1, 20.0)
+    min_candidate_fraction: float = key_field(0.2, "Share of candidates that must survive exclusion", "", 0.01, 1.0)
+    selection: str = key_field(
         "paper",
         "paper: best 3 by RSSI, one at random; 3gpp: lowest-RSSI 20 %, one at random",
         choices=("paper", "3gpp"),
     )
-    paper_best_k: int = _key(3, "Number of best candidates in the paper's rule", "", 1, 100)
-    keep_probability: float = _key(0.0, "Probability of keeping the resource when the counter expires", "", 0.0, 0.8)
-    counter_min: int = _key(5, "Reselection counter lower bound at RRI >= 100 ms (scaled by 100/RRI below)", "", 1, 100)
-    counter_max: int = _key(
+    paper_best_k: int = key_field(3, "Number of best candidates in the paper's rule", "", 1, 100)
+    keep_probability: float = key_field(
+        0.0, "Probability of keeping the resource when the counter expires", "", 0.0, 0.8
+    )
+    counter_min: int = key_field(
+        5, "Reselection counter lower bound at RRI >= 100 ms (scaled by 100/RRI below)", "", 1, 100
+    )
+    counter_max: int = key_field(
         15, "Reselection counter upper bound at RRI >= 100 ms (scaled by 100/RRI below)", "", 1, 100
     )
-    exclude_unmonitored: bool = _key(
+    exclude_unmonitored: bool = key_field(
         True, "Exclude candidates in the subframe of the UE's own transmission (not monitored: half duplex)"
     )
-    reservation_signalling: str = _key(
+    reservation_signalling: str = key_field(
         "standard",
         "standard: the keep/reselect draw happens when the counter reaches 1 and the last SCI of a UE that will "
         "reselect carries no reservation (TS 36.213 14.1.1.6, TS 36.321 5.14.1.1; the default); always: every SCI "
@@ -432,7 +299,7 @@ class SpsConfig(Section):
         "simplification)",
         choices=("always", "standard"),
     )
-    reselection_timing: str = _key(
+    reselection_timing: str = key_field(
         "per_ue",
         "When counters run and reselections happen: per_ue: at each UE's own packet arrival (its generation slot "
         "n): the counter counts down there, and a reselecting UE senses the 1000 ms before n (SCIs heard earlier "
@@ -442,7 +309,7 @@ class SpsConfig(Section):
         "simplification)",
         choices=("period_end", "per_ue"),
     )
-    sci_decoding: str = _key(
+    sci_decoding: str = key_field(
         "sinr",
         "Which SCIs a receiver decodes, and so which reservations its sensing excludes (TS 36.213 14.1.1.6): "
         "sinr: the standard's behaviour (the default), only a decoded PSCCH counts, decided per receiver by a "
@@ -451,7 +318,7 @@ class SpsConfig(Section):
         "every SCI not lost to half duplex or below radio.sensitivity_dbm (the paper presets' simplification)",
         choices=("always", "sinr"),
     )
-    sci_sinr_offset_db: float = _key(
+    sci_sinr_offset_db: float = key_field(
         0.0,
         "With sci_decoding=sinr: PSCCH SINR minus the PSSCH link's SINR (power share of the 2 PSCCH RBs, "
         "receiver gain; 0: the same SINR as the PSSCH)",
@@ -459,7 +326,7 @@ class SpsConfig(Section):
         -20.0,
         20.0,
     )
-    sci_gates_pssch: bool = _key(
+    sci_gates_pssch: bool = key_field(
         True,
         "With sci_decoding=sinr: a receiver that misses the SCI cannot decode the PSSCH it schedules (SCI format "
         "1 carries the PSSCH's frequency resources and MCS, TS 36.212 5.4.3.1.2): a packet is received only if "
@@ -489,20 +356,20 @@ class LinkConfig(Section):
     """SINR -> success probability abstraction (eq. 8)."""
 
     _name = "link"
-    model: str = _key(
+    model: str = key_field(
         "per_table",
         "per_table: interpolated PER(SINR); rayleigh: closed form over Rayleigh fading; threshold: SINR >= theta",
         choices=("per_table", "rayleigh", "threshold"),
     )
-    per_curve: str = _key(
+    per_curve: str = key_field(
         "r1-160284-190b-r0.5",
         "PER curve (package data)",
         choices=("r1-160284-190b-r0.5", "r1-160284-190b-r0.7"),
     )
-    sinr_threshold_db: float = _key(
+    sinr_threshold_db: float = key_field(
         2.0, "Decoding threshold theta for the rayleigh and threshold models", "dB", -20.0, 40.0
     )
-    inband_emission_db: float | None = _key(
+    inband_emission_db: float | None = key_field(
         None,
         "Leakage from transmissions on other subchannels of the same subframe, relative, with "
         "inband_emission_model=flat; null: none (must be null with inband_emission_model=3gpp)",
@@ -510,7 +377,7 @@ class LinkConfig(Section):
         -80.0,
         0.0,
     )
-    inband_emission_model: str = _key(
+    inband_emission_model: str = key_field(
         "3gpp",
         "In-band emission from transmissions on other subchannels of the same subframe: 3gpp: the TS 36.101 "
         "6.5.2.3 in-band emission mask with TR 36.843 A.2.1.5's W, X, Y, Z as WiLabV2Xsim uses them (general, IQ "
@@ -518,21 +385,21 @@ class LinkConfig(Section):
         "inband_emission_db (none when that is null: the paper presets')",
         choices=("flat", "3gpp"),
     )
-    per_interpolation: str = _key(
+    per_interpolation: str = key_field(
         "log",
         "How per_table interpolates the PER curve between its points: log: ln PER linear in SINR (dB), PER "
         "geometric between points, which follows the waterfall (7 dB on the r0.5 curve: 0.055 linear, 0.042 log; "
         "the default); linear: PER linear in SINR (dB) (the paper presets'). Same at the table points",
         choices=("linear", "log"),
     )
-    max_range_m: float | None = _key(
+    max_range_m: float | None = key_field(
         None,
         "Interference and link cut-off: pairs farther apart are not computed; null: all pairs",
         "m",
         1.0,
         1e6,
     )
-    pair_state: str = _key(
+    pair_state: str = key_field(
         "auto",
         "Pair state with max_range_m set: dense: N x N shadowing and an all-pairs index; sparse: only the pairs "
         "in range (a pair's shadowing is drawn when it first comes in range and forgotten when it leaves; "
@@ -559,13 +426,13 @@ class MetricsConfig(Section):
     """What is measured and recorded."""
 
     _name = "metrics"
-    prr_bin_m: float = _key(10.0, "Width of the PRR-vs-distance bins", "m", 0.0, 1000.0, lo_open=True)
-    max_distance_m: float = _key(650.0, "PRR-vs-distance range (links farther are not binned)", "m", 1.0, 1e6)
-    interferer_range_m: float = _key(
+    prr_bin_m: float = key_field(10.0, "Width of the PRR-vs-distance bins", "m", 0.0, 1000.0, lo_open=True)
+    max_distance_m: float = key_field(650.0, "PRR-vs-distance range (links farther are not binned)", "m", 1.0, 1e6)
+    interferer_range_m: float = key_field(
         200.0, "NSV range th_I: co-channel transmitters within this distance of the receiver", "m", 1.0, 1e5
     )
-    record_links: bool = _key(True, "Keep the per-link table (stage-2 data); false saves memory on large runs")
-    nsv_scope: str = _key(
+    record_links: bool = key_field(True, "Keep the per-link table (stage-2 data); false saves memory on large runs")
+    nsv_scope: str = key_field(
         "co_channel",
         "Which transmitters NSV counts (and the main interferer l is the nearest of): co_channel: those on the "
         "link's resource (same subframe and subchannel); concurrent: every vehicle transmitting in the same "
@@ -579,11 +446,13 @@ class SimConfig(Section):
     """Run length."""
 
     _name = "sim"
-    n_subframes: int = _key(10240, "Subframes simulated by `simulate` (paper Table 1: 10240)", "subframes", 1, 10**8)
-    warmup_subframes: int = _key(
+    n_subframes: int = key_field(
+        10240, "Subframes simulated by `simulate` (paper Table 1: 10240)", "subframes", 1, 10**8
+    )
+    warmup_subframes: int = key_field(
         1000, "Subframes run before measuring (fills the sensing window)", "subframes", 0, 10**7
     )
-    warmup_mode: str = _key(
+    warmup_mode: str = key_field(
         "until_reselected",
         "until_reselected: warm up for warmup_subframes, then go on a period at a time until every vehicle has "
         "made a sensing-based selection (the default); fixed: warmup_subframes only (the paper presets'; vehicles "
@@ -874,17 +743,7 @@ def config_markdown() -> str:
             lines.append(f"- `{section}`: " + ", ".join(f"`{k}={json.dumps(v)}`" for k, v in values.items()))
     for alias, name in PRESET_ALIASES.items():  # former names, kept for files and runs that name them
         lines += ["", f"`{alias}`: the former name of `{name}`, the same preset."]
-    hints_cache: dict[type, dict[str, Any]] = {}
     for name, cls in _SECTIONS.items():
-        hints = hints_cache.setdefault(cls, typing.get_type_hints(cls))
         lines += ["", f"## `{name}`", "", (cls.__doc__ or "").strip(), ""]
-        lines += ["| key | type | unit | default | allowed | meaning |", "|---|---|---|---|---|---|"]
-        for f in dataclasses.fields(cls):
-            tp, optional = _base_type(hints[f.name])
-            tname = tp.__name__ + (" or null" if optional else "")
-            unit = f.metadata["unit"] or "-"
-            default = json.dumps(f.default)
-            allowed = _allowed(f.metadata) if tp is not bool else "true | false"
-            cells = [c.replace("|", "\\|") for c in (allowed, f.metadata["doc"])]  # a | inside a cell splits it
-            lines.append(f"| `{name}.{f.name}` | {tname} | {unit} | `{default}` | {cells[0]} | {cells[1]} |")
+        lines += markdown_rows(name, cls)
     return "\n".join(lines) + "\n"
