@@ -31,7 +31,8 @@ zero. A tracked vehicle that leaves the network (arrives, or is teleported) ends
 seconds of driving and disable teleports, so they keep all ``N``.
 
 Modules (bottom to top): :mod:`~cv2x_marl.sim.sumo.tools` (finding SUMO, running its tools, the
-cache), :mod:`~cv2x_marl.sim.sumo.scenario` (generated networks and demand, a user's ``.sumocfg``),
+cache), :mod:`~cv2x_marl.sim.sumo.network` (generated networks), :mod:`~cv2x_marl.sim.sumo.scenario`
+(generated demand and ``.sumocfg``, a user's ``.sumocfg``),
 :mod:`~cv2x_marl.sim.sumo.slots` (tracked states and the slot table both sources share),
 :mod:`~cv2x_marl.sim.sumo.lockstep` (libsumo), :mod:`~cv2x_marl.sim.sumo.trace` (FCD replay) and
 :mod:`~cv2x_marl.sim.sumo.source` (the source of a configuration). None imports libsumo, SUMO's
@@ -44,26 +45,28 @@ from cv2x_marl.sim.sumo.lockstep import (
     SumoLockstep,
     lockstep_of,
 )
-from cv2x_marl.sim.sumo.scenario import (
-    CALIBRATION_WINDOW_S,
+from cv2x_marl.sim.sumo.network import (
     CFG_FILE,
-    HIGHWAY_SPEED_CLASSES,
     NET_FILE,
     ROUTE_FILE,
+    build_network,
+    check_generated,
+    highway_plain_xml,
+    netgenerate_args,
+    read_net,
+)
+from cv2x_marl.sim.sumo.scenario import (
+    CALIBRATION_WINDOW_S,
+    HIGHWAY_SPEED_CLASSES,
     ROUTE_HORIZON_S,
     Scenario,
-    build_network,
     build_scenario,
-    check_generated,
     check_sumocfg,
     count_in_network,
     draw_sumo_seed,
     highway_flows_xml,
-    highway_plain_xml,
-    netgenerate_args,
     random_trips_xml,
     random_walk_routes,
-    read_net,
     routes_xml,
     speed_classes,
     sumocfg_xml,

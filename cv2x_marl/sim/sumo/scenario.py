@@ -1,6 +1,7 @@
-"""Generated SUMO scenarios: the network (``netgenerate``, or plain XML for the highway) and the
-demand (random walks for a fixed population, highway flows or ``randomTrips.py`` trips for an open
-one) of the ``road`` and ``vehicles`` sections, and the check of a user's ``.sumocfg`` (issue 14).
+"""Generated SUMO scenarios: the demand on the network of :mod:`~cv2x_marl.sim.sumo.network`
+(random walks for a fixed population, highway flows or ``randomTrips.py`` trips for an open one) of the
+``road`` and ``vehicles`` sections, the ``.sumocfg`` that runs them, and the check of a user's
+``.sumocfg`` (issue 14).
 
 See :mod:`cv2x_marl.sim.sumo` for the rules; every file is cached by :func:`~cv2x_marl.sim.sumo.tools.cached`.
 """
@@ -18,6 +19,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.sim.sumo.network import (
+    CFG_FILE,
+    GENERATOR_VERSION,
+    NET_FILE,
+    ROUTE_FILE,
+    SumoNet,
+    build_network,
+    read_net,
+)
 from cv2x_marl.sim.sumo.tools import SumoError, cached, run_python_tool, run_tool, sumo_version
 
 FloatArray = NDArray[np.float64]
@@ -25,10 +35,6 @@ IntArray = NDArray[np.int64]
 
 #: seconds of driving (at the highest desired speed) each generated route covers
 ROUTE_HORIZON_S = 3600.0
-#: file names of a generated (or exported) scenario
-NET_FILE, ROUTE_FILE, CFG_FILE = "net.net.xml", "routes.rou.xml", "scenario.sumocfg"
-#: format version of the generated files (part of every cache key)
-_GENERATOR_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -48,154 +54,8 @@ class Scenario:
     generated: bool
 
 
-def check_generated(cfg: ScenarioConfig) -> None:
-    """Refuse (ConfigError, naming the keys) a ``road`` / ``vehicles`` combination with no generated
-    scenario. The grid has two demands: random walks for a fixed population, ``randomTrips.py`` trips for
-    an open one; the highway's flows need an open population; open demands are sized by the slowest
-    desired speed."""
-    road, veh = cfg.road, cfg.vehicles
-    if veh.speed_max_mps <= 0:
-        raise ConfigError("vehicles.mobility=sumo needs vehicles.speed_max_mps > 0 (the network's speed limit)")
-    if road.kind == "highway" and veh.population != "open":
-        raise ConfigError(
-            "a generated SUMO highway (road.kind=highway, vehicles.sumo_config null) has vehicles entering at one "
-            "end and leaving at the other: set vehicles.population=open (the sumo-highway preset does)"
-        )
-    if veh.population == "open" and veh.speed_min_mps <= 0:
-        raise ConfigError(
-            "a generated open population needs vehicles.speed_min_mps > 0 (its demand is sized by the slowest "
-            "desired speed)"
-        )
-
-
-def netgenerate_args(cfg: ScenarioConfig) -> list[str]:
-    """``netgenerate`` arguments for the ``road`` section (the grid).
-
-    Raises:
-        ConfigError: a road kind without a generated SUMO grid network.
-    """
-    road, veh = cfg.road, cfg.vehicles
-    if road.kind != "grid":
-        raise ConfigError(f"netgenerate builds the grid network only (road.kind=grid, got {road.kind!r})")
-    check_generated(cfg)
-    spacing = road.length_m / road.n_roads_per_axis
-    return [
-        "--grid",
-        f"--grid.x-number={road.n_roads_per_axis}",
-        f"--grid.y-number={road.n_roads_per_axis}",
-        f"--grid.length={spacing!r}",
-        f"--grid.attach-length={spacing / 2!r}",
-        f"--default.lanenumber={road.lanes_per_direction}",
-        f"--default.lanewidth={road.lane_width_m!r}",
-        f"--default.speed={veh.speed_max_mps!r}",
-        "--default-junction-type=priority",
-        "--no-turnarounds.except-deadend=true",
-        "--seed=0",
-    ]
-
-
-def highway_plain_xml(cfg: ScenarioConfig) -> tuple[str, str]:
-    """Plain ``(nodes, edges)`` XML of the highway (``netconvert`` input): one straight two-way road
-    along x from 0 to ``road.length_m`` with its centre line at ``y = lanes_per_direction *
-    lane_width_m`` (as :class:`cv2x_marl.sim.road.Road`); each direction's lanes lie to its right
-    (``spreadType="right"``): eastbound in ``[0, c]``, westbound in ``[c, 2c]``."""
-    road, veh = cfg.road, cfg.vehicles
-    c = road.lanes_per_direction * road.lane_width_m
-    nodes = (
-        "<nodes>\n"
-        f'    <node id="west" x="0" y="{c!r}" type="dead_end"/>\n'
-        f'    <node id="east" x="{road.length_m!r}" y="{c!r}" type="dead_end"/>\n'
-        "</nodes>\n"
-    )
-    common = (
-        f'numLanes="{road.lanes_per_direction}" width="{road.lane_width_m!r}" speed="{veh.speed_max_mps!r}" '
-        'spreadType="right"'
-    )
-    edges = (
-        "<edges>\n"
-        f'    <edge id="eastbound" from="west" to="east" {common}/>\n'
-        f'    <edge id="westbound" from="east" to="west" {common}/>\n'
-        "</edges>\n"
-    )
-    return nodes, edges
-
-
-def build_network(cfg: ScenarioConfig) -> Path:
-    """The cached ``net.net.xml`` for the ``road`` section (``netgenerate`` for the grid, ``netconvert``
-    of :func:`highway_plain_xml` for the highway; run on a cache miss only)."""
-    if cfg.road.kind == "highway":
-        check_generated(cfg)
-        nodes, edges = highway_plain_xml(cfg)
-        hkey = {"what": "net", "generator": _GENERATOR_VERSION, "sumo": sumo_version(), "nodes": nodes, "edges": edges}
-
-        def build_highway(folder: Path) -> None:
-            (folder / "net.nod.xml").write_text(nodes)
-            (folder / "net.edg.xml").write_text(edges)
-            run_tool(
-                "netconvert",
-                [
-                    "--node-files=net.nod.xml",
-                    "--edge-files=net.edg.xml",
-                    f"--output-file={NET_FILE}",
-                    "--offset.disable-normalization=true",
-                    "--no-turnarounds=true",
-                    "--no-warnings=true",
-                ],
-                cwd=folder,
-            )
-
-        return cached("net", hkey, build_highway) / NET_FILE
-    args = netgenerate_args(cfg)
-    key = {"what": "net", "generator": _GENERATOR_VERSION, "sumo": sumo_version(), "netgenerate": args}
-
-    def build(folder: Path) -> None:
-        run_tool("netgenerate", [*args, f"--output-file={NET_FILE}", "--no-warnings=true"], cwd=folder)
-
-    return cached("net", key, build) / NET_FILE
-
-
-@dataclass(frozen=True)
-class _Net:
-    """The parts of a SUMO network the random walk needs."""
-
-    edges: list[str]
-    length_m: FloatArray
-    speed_mps: FloatArray
-    # per edge: {direction code: [successor edge index]}
-    successors: list[dict[str, list[int]]]
-
-
-def read_net(path: Path) -> _Net:
-    """Edges (not internal), their lengths and their successors by turn direction."""
-    edges: list[str] = []
-    length: list[float] = []
-    speed: list[float] = []
-    conns: list[tuple[str, str, str]] = []
-    try:
-        for _, el in ET.iterparse(path):
-            if el.tag == "edge" and el.get("function") != "internal" and not el.get("id", ":").startswith(":"):
-                lanes = el.findall("lane")
-                edges.append(el.get("id", ""))
-                length.append(float(lanes[0].get("length", "nan")))
-                speed.append(float(lanes[0].get("speed", "nan")))
-            elif el.tag == "connection" and not el.get("from", ":").startswith(":"):
-                conns.append((el.get("from", ""), el.get("to", ""), el.get("dir", "s").lower()))
-            if el.tag in ("edge", "junction", "connection"):
-                el.clear()
-    except (ET.ParseError, OSError) as exc:
-        raise SumoError(f"cannot read the SUMO network {path}: {exc}") from exc
-    index = {e: i for i, e in enumerate(edges)}
-    succ: list[dict[str, list[int]]] = [{} for _ in edges]
-    for a, b, d in conns:
-        if a in index and b in index:
-            lst = succ[index[a]].setdefault(d, [])
-            if index[b] not in lst:
-                lst.append(index[b])
-    return _Net(edges, np.array(length), np.array(speed), succ)
-
-
 def random_walk_routes(
-    net: _Net, cfg: ScenarioConfig, n: int, rng: np.random.Generator
+    net: SumoNet, cfg: ScenarioConfig, n: int, rng: np.random.Generator
 ) -> tuple[IntArray, FloatArray, FloatArray]:
     """``n`` random-walk routes over ``net`` with the paper's turning probabilities.
 
@@ -242,7 +102,7 @@ def random_walk_routes(
     return np.stack(steps, axis=1), desired, desired / veh.speed_max_mps
 
 
-def routes_xml(net: _Net, routes: IntArray, speed_factor: FloatArray) -> str:
+def routes_xml(net: SumoNet, routes: IntArray, speed_factor: FloatArray) -> str:
     """The ``.rou.xml`` text: one vType and a vehicle per route, all departing at t = 0 from a free
     random position of their first edge (``departPos="random_free"``: SUMO draws it with its seed)."""
     width = max(3, len(str(len(routes) - 1)))
@@ -371,7 +231,7 @@ def _vtypes_xml(cfg: ScenarioConfig) -> list[str]:
     ]
 
 
-def _route_lengths_m(routes: Path, net: _Net) -> FloatArray:
+def _route_lengths_m(routes: Path, net: SumoNet) -> FloatArray:
     """[V] length of every ``<route edges=...>`` of a route file (edge lengths summed)."""
     length = dict(zip(net.edges, net.length_m.tolist(), strict=True))
     out = [sum(length[e] for e in el.get("edges", "").split()) for el in ET.parse(routes).getroot().iter("route")]
@@ -482,7 +342,7 @@ def build_scenario(cfg: ScenarioConfig, rng: np.random.Generator) -> Scenario:
     sumocfg = sumocfg_xml(f"../{net_path.parent.name}/{NET_FILE}", ROUTE_FILE, step_s, seed)
     key = {
         "what": "scenario",
-        "generator": _GENERATOR_VERSION,
+        "generator": GENERATOR_VERSION,
         "net": net_path.parent.name,
         "routes": hashlib.sha256(rou.encode()).hexdigest(),
         "sumocfg": hashlib.sha256(sumocfg.encode()).hexdigest(),
@@ -505,7 +365,7 @@ def _open_demand_scenario(cfg: ScenarioConfig, net_path: Path, seed: int, demand
     v = cfg.vehicles
     key = {
         "what": "scenario",
-        "generator": _GENERATOR_VERSION,
+        "generator": GENERATOR_VERSION,
         "sumo": sumo_version(),
         "net": net_path.parent.name,
         "demand": demand,

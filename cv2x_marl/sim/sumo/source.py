@@ -9,7 +9,8 @@ import numpy as np
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.sim.sumo.lockstep import SumoLockstep
-from cv2x_marl.sim.sumo.scenario import build_scenario, check_generated, check_sumocfg
+from cv2x_marl.sim.sumo.network import check_generated
+from cv2x_marl.sim.sumo.scenario import build_scenario, check_sumocfg
 from cv2x_marl.sim.sumo.tools import import_libsumo, sumo_home
 from cv2x_marl.sim.sumo.trace import TraceReplay
 
