@@ -235,7 +235,7 @@ def test_generated_network_is_cached(monkeypatch: pytest.MonkeyPatch, tmp_path: 
         calls.append(name)
         real(name, *args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(sumo, "run_tool", counting)
+    monkeypatch.setattr(sumo.network, "run_tool", counting)  # where build_network looks it up
     cfg = _cfg()
     first = sumo.build_network(cfg)
     assert calls == ["netgenerate"] and first.is_file()

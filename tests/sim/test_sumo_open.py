@@ -17,6 +17,7 @@ pytest.importorskip("libsumo")
 pytest.importorskip("sumo")
 
 from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.experiments.sumo_export import export_scenario
 from cv2x_marl.sim import Simulator, sumo
 from cv2x_marl.sim.channel import Shadowing, SparseShadowing
 from cv2x_marl.sim.mobility import TrackedState
@@ -163,7 +164,7 @@ def test_same_seed_same_run_and_trace_replay_equals_live(tmp_path: Path) -> None
     ids_a, pos_a, sum_a = run(cfg)
     ids_b, pos_b, sum_b = run(cfg)
     assert ids_a == ids_b and np.array_equal(pos_a, pos_b) and sum_a == sum_b
-    info = sumo.export_scenario(cfg, SEED, tmp_path, seconds=cfg.sumo_begin_s + 6.0)
+    info = export_scenario(cfg, SEED, tmp_path, seconds=cfg.sumo_begin_s + 6.0)
     assert info["n_vehicles"] > 60  # entered and left during the trace
     trace_cfg = apply_overrides(cfg, ["vehicles.mobility=trace", f"vehicles.trace_file={tmp_path / 'fcd.xml'}"])
     ids_t, pos_t, sum_t = run(trace_cfg)

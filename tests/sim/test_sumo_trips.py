@@ -19,6 +19,7 @@ pytest.importorskip("libsumo")
 pytest.importorskip("sumo")
 
 from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.experiments.sumo_export import export_scenario
 from cv2x_marl.sim import Simulator, sumo
 
 SEED = 5
@@ -35,7 +36,7 @@ def _routes(folder: Path) -> ET.Element:
 
 def test_routes_are_connected_paths_of_the_network_and_classes_as_documented(tmp_path: Path) -> None:
     cfg = _cfg()
-    sumo.export_scenario(cfg, SEED, tmp_path, seconds=cfg.sumo_begin_s + 1.0)
+    export_scenario(cfg, SEED, tmp_path, seconds=cfg.sumo_begin_s + 1.0)
     net = ET.parse(tmp_path / "net.net.xml").getroot()
     # SUMO's connections (from edge -> to edge), internal edges left out
     joins = {(c.get("from"), c.get("to")) for c in net.iter("connection") if not c.get("from", "").startswith(":")}
@@ -87,7 +88,7 @@ def test_same_seed_same_scenario_other_seed_other(tmp_path: Path, monkeypatch: p
     for k, seed in enumerate((SEED, SEED, SEED + 1)):
         monkeypatch.setenv(sumo.CACHE_ENV, str(tmp_path / f"cache{k}"))  # built afresh each time
         out = tmp_path / f"out{k}"
-        sumo.export_scenario(cfg, seed, out, seconds=cfg.sumo_begin_s + 1.0)
+        export_scenario(cfg, seed, out, seconds=cfg.sumo_begin_s + 1.0)
         texts.append((out / "routes.rou.xml").read_text())
     assert texts[0] == texts[1]
     assert texts[0] != texts[2]
@@ -128,7 +129,7 @@ def test_relative_cache_path_and_dataset_refusal(tmp_path: Path, monkeypatch: py
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv(sumo.CACHE_ENV, "relcache")  # SUMO's tools run in temporary folders
     cfg = _cfg()
-    sumo.export_scenario(cfg, SEED, tmp_path / "out", seconds=cfg.sumo_begin_s + 1.0)
+    export_scenario(cfg, SEED, tmp_path / "out", seconds=cfg.sumo_begin_s + 1.0)
     assert sumo.cache_dir() == (tmp_path / "relcache").resolve()
     with pytest.raises(DatasetError, match=r"vehicles\.population=open a slot is reused"):
         build_dataset(cfg, 1, 0, tmp_path / "ds", aggregate_window_ms=1000, progress=False)
