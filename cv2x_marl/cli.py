@@ -413,7 +413,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
     from cv2x_marl.runs import run_folder
-    from cv2x_marl.sim.sumo import export_scenario, export_seconds
+    from cv2x_marl.experiments.sumo_export import export_scenario, export_seconds
 
     cfg = _scenario(args)
     export_seconds(cfg, args.seconds)  # the trace's size, refused before the folder is touched
