@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from cv2x_marl import runs
 from cv2x_marl.config import (
     PRESET_ALIASES,
     PRESETS,
@@ -389,11 +390,10 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from cv2x_marl.runs import run_folder
     from cv2x_marl.validation.compare import run_validation
 
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
-    with run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
+    with runs.run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
         run_validation(
             args.out,
             args.densities,
@@ -408,13 +408,12 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
-    from cv2x_marl.runs import run_folder
     from cv2x_marl.sim.sumo import export_scenario, export_seconds
 
     cfg = _scenario(args)
     export_seconds(cfg, args.seconds)  # the trace's size, refused before the folder is touched
     params = {"seed": args.seed, "seconds": args.seconds, "parquet": args.parquet}
-    with run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
+    with runs.run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
         summary = export_scenario(cfg, args.seed, args.out, args.seconds, args.parquet)
     if args.json:
         _print_json(summary)
@@ -719,8 +718,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``cv2x-marl`` console script."""
-    from cv2x_marl import runs
-
     parser = build_parser()
     args = parser.parse_args(argv)
     runs.INVOCATION = ["cv2x-marl", *(sys.argv[1:] if argv is None else argv)]
@@ -753,8 +750,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _notes(exc: BaseException) -> str:
     """What happened to the output folder (the notes :class:`cv2x_marl.runs.RunFolder` attached), as ``; ...``."""
-    from cv2x_marl import runs
-
     return "".join(f"; {n}" for n in runs.notes(exc))
 
 
