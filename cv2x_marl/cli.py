@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from cv2x_marl import runs
 from cv2x_marl.config import (
     PRESET_ALIASES,
     PRESETS,
@@ -21,6 +22,7 @@ from cv2x_marl.config import (
     show_value,
     to_dict,
 )
+from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.io import dumps_json
 from cv2x_marl.rl.errors import TrainError
@@ -29,15 +31,11 @@ from cv2x_marl.rl.errors import TrainError
 DEFAULT_TIMESTEPS = 200_000
 #: dataset readings: ``per-packet`` (the settings as given) or ``paper`` (the paper's Table 3 instances)
 READINGS = ("per-packet", "paper")
-#: the env ids `evaluate` and `train` accept (kept here so `--help` imports no env code)
-EVAL_ENV_IDS = (
-    "cv2x/SingleMover-v2",
-    "cv2x/Mobility-v2",
-    "cv2x/SingleMover-v1",
-    "cv2x/Mobility-v1",
-    "cv2x/SingleMover-v0",
-    "cv2x/Mobility-v0",
-)
+#: the env ids `evaluate`, `train`, `sweep` and `baselines` accept, newest first (the registry imports
+#: no env code, so `--help` stays fast)
+ENV_CHOICES = ENV_IDS[::-1]
+#: the `--preset` choices
+PRESET_CHOICES = sorted([*PRESETS, *PRESET_ALIASES])
 
 
 def _number_type(
@@ -105,7 +103,7 @@ def _add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--preset",
         default=None,
-        choices=sorted([*PRESETS, *PRESET_ALIASES]),
+        choices=PRESET_CHOICES,
         help="base configuration (default: paper, or the --config file's preset: line; naming two "
         "different presets is refused)",
     )
@@ -224,9 +222,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _cmd_gbmu(args: argparse.Namespace) -> int:
-    from cv2x_marl.experiments.baselines import resolve_model
-    from cv2x_marl.experiments.dataset import load_model
     from cv2x_marl.experiments.gbmu_study import check_methods, run_study
+    from cv2x_marl.regression.model import load_model, resolve_model
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     check_methods(methods, args.methods)  # before the model is read
@@ -266,8 +263,8 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from cv2x_marl.experiments.baselines import resolve_model
     from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.regression.model import resolve_model
 
     env_kwargs = {
         "preset": args.preset,
@@ -393,11 +390,10 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from cv2x_marl.runs import run_folder
     from cv2x_marl.validation.compare import run_validation
 
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
-    with run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
+    with runs.run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
         run_validation(
             args.out,
             args.densities,
@@ -412,13 +408,12 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_sumo_export(args: argparse.Namespace) -> int:
-    from cv2x_marl.runs import run_folder
     from cv2x_marl.experiments.sumo_export import export_scenario, export_seconds
 
     cfg = _scenario(args)
     export_seconds(cfg, args.seconds)  # the trace's size, refused before the folder is touched
     params = {"seed": args.seed, "seconds": args.seconds, "parquet": args.parquet}
-    with run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
+    with runs.run_folder(args.out, "sumo export", overwrite=args.overwrite, parameters=params):
         summary = export_scenario(cfg, args.seed, args.out, args.seconds, args.parquet)
     if args.json:
         _print_json(summary)
@@ -554,7 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--env",
         default=None,
-        choices=list(EVAL_ENV_IDS),
+        choices=ENV_CHOICES,
         help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v2",
     )
     p.add_argument(
@@ -572,7 +567,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="held-out episodes; episodes x movers at most 1,000,000 (the per-mover rows stay in memory)",
     )
     p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--preset", default="paper", choices=sorted([*PRESETS, *PRESET_ALIASES]))
+    p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
     p.add_argument(
         "--max-cycles", type=COUNT, default=100, help="steps per episode (the env's max_cycles, at most 10,000)"
@@ -605,7 +600,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
-    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS))
+    p.add_argument("--env", default=None, choices=ENV_CHOICES)
     p.add_argument("--algo", default="ppo")
     p.add_argument(
         "--timesteps",
@@ -627,7 +622,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="PPO training sweep over seeds and a grid, as Ray Tune trials")
     p.add_argument("--config", type=Path, help="training config (as for train) the grid modifies")
-    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS), help="env id (default: the config's)")
+    p.add_argument("--env", default=None, choices=ENV_CHOICES, help="env id (default: the config's)")
     p.add_argument("--seeds", default="0", help="training seeds, comma-separated (default: 0)")
     p.add_argument(
         "--grid",
@@ -666,7 +661,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dir", type=Path, default=Path("baselines"), help="folder of baseline files (*.yaml)")
     p.add_argument("--episodes", type=COUNT, default=144)
     p.add_argument("--seed", type=SEED, default=2026)
-    p.add_argument("--env", default=None, choices=list(EVAL_ENV_IDS), help="default: each file's env_id")
+    p.add_argument("--env", default=None, choices=ENV_CHOICES, help="default: each file's env_id")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_baselines)
@@ -723,8 +718,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``cv2x-marl`` console script."""
-    from cv2x_marl import runs
-
     parser = build_parser()
     args = parser.parse_args(argv)
     runs.INVOCATION = ["cv2x-marl", *(sys.argv[1:] if argv is None else argv)]
@@ -757,8 +750,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _notes(exc: BaseException) -> str:
     """What happened to the output folder (the notes :class:`cv2x_marl.runs.RunFolder` attached), as ``; ...``."""
-    from cv2x_marl import runs
-
     return "".join(f"; {n}" for n in runs.notes(exc))
 
 

@@ -351,6 +351,13 @@ class SpsConfig(Section):
             )
 
 
+#: the shipped PER curves (``link.per_curve``; package data ``cv2x_marl/sim/data/<name>.csv``,
+#: read by :func:`cv2x_marl.sim.link.load_per_curve`)
+PER_CURVES: tuple[str, ...] = ("r1-160284-190b-r0.5", "r1-160284-190b-r0.7")
+#: ways of interpolating a PER table between its points (``link.per_interpolation``)
+PER_INTERPOLATIONS: tuple[str, ...] = ("linear", "log")
+
+
 @dataclass(frozen=True)
 class LinkConfig(Section):
     """SINR -> success probability abstraction (eq. 8)."""
@@ -364,7 +371,7 @@ class LinkConfig(Section):
     per_curve: str = key_field(
         "r1-160284-190b-r0.5",
         "PER curve (package data)",
-        choices=("r1-160284-190b-r0.5", "r1-160284-190b-r0.7"),
+        choices=PER_CURVES,
     )
     sinr_threshold_db: float = key_field(
         2.0, "Decoding threshold theta for the rayleigh and threshold models", "dB", -20.0, 40.0
@@ -390,7 +397,7 @@ class LinkConfig(Section):
         "How per_table interpolates the PER curve between its points: log: ln PER linear in SINR (dB), PER "
         "geometric between points, which follows the waterfall (7 dB on the r0.5 curve: 0.055 linear, 0.042 log; "
         "the default); linear: PER linear in SINR (dB) (the paper presets'). Same at the table points",
-        choices=("linear", "log"),
+        choices=PER_INTERPOLATIONS,
     )
     max_range_m: float | None = key_field(
         None,

@@ -14,7 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.rl.train import load_train_config, make_ppo, make_vec_env
 
 

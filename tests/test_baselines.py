@@ -8,14 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from cv2x_marl.experiments.baselines import (
-    baseline_files,
-    load_baseline,
-    make_baseline_policy,
-    render_table,
-    run_baselines,
-)
-from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
+from cv2x_marl.env.registry import make_parallel_env
+from cv2x_marl.experiments.baselines import render_table, run_baselines
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.policies.baselines import baseline_files, load_baseline, make_baseline_policy
 
 ROOT = Path(__file__).resolve().parent.parent
 FAST = {"max_cycles": 4, "overrides": ["sim.warmup_subframes=200"]}
@@ -86,7 +82,7 @@ def test_run_baselines_writes_the_table_and_shares(tmp_path: Path) -> None:
     ],
 )
 def test_gbmu_variant_files_carry_their_model_and_schedule(name: str, kind: str, schedule: str | None) -> None:
-    env = make_eval_env("cv2x/SingleMover-v2", **FAST)
+    env = make_parallel_env("cv2x/SingleMover-v2", **FAST)
     policy = make_baseline_policy(load_baseline(ROOT / "baselines" / f"{name}.yaml"), env)
     assert policy.name == "gbmu" and policy.model.kind == kind  # type: ignore[attr-defined]
     got = policy.schedule  # type: ignore[attr-defined]

@@ -193,7 +193,7 @@ def test_flipped_bytes_are_caught_in_datasets_models_and_run_folders(
 
 
 def test_a_corrupted_ppo_model_in_a_run_folder_is_refused(tmp_path: Path) -> None:
-    from cv2x_marl.experiments.evaluate import PpoPolicy
+    from cv2x_marl.policies.ppo import PpoPolicy
 
     run = tmp_path / "run"
     with RunFolder(run, "train"):

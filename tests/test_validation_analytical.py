@@ -114,7 +114,7 @@ def test_bler_curves_are_r1_160284_tables() -> None:
     from cv2x_marl.sim.link import load_per_curve
 
     for curve, name in ((BLER_190B_R07, "r1-160284-190b-r0.7"), (BLER_190B_R05, "r1-160284-190b-r0.5")):
-        ours = load_per_curve(name)
+        ours = load_per_curve(name, "linear")
         np.testing.assert_array_equal(curve(ours.sinr_db), ours.per)
 
 
@@ -293,14 +293,14 @@ def test_simulator_overrides_match_the_model() -> None:
         simulator_overrides(0.2, 10.0, 20.0, 3, 190, 1000)
 
 
-def test_compare_main_writes_outputs(tmp_path: object) -> None:
+def test_run_validation_writes_outputs(tmp_path: object) -> None:
     import json
     from pathlib import Path
 
-    from cv2x_marl.validation.compare import main
+    from cv2x_marl.validation.compare import run_validation
 
     out = Path(str(tmp_path)) / "val"
-    assert main(["--out", str(out), "--densities", "0.02", "--subframes", "200", "--seeds", "3"]) == 0
+    assert len(run_validation(out, [0.02], n_subframes=200, seeds=[3])) == 4
     doc = json.loads((out / "validation.json").read_text())
     (res,) = doc["densities"]
     assert res["n_vehicles"] == 40

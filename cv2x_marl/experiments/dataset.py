@@ -18,12 +18,19 @@ import pyarrow.parquet as pq
 
 import cv2x_marl
 from cv2x_marl.config import ConfigError, ScenarioConfig, show_value, to_dict
-from cv2x_marl.experiments.simulate import write_parquet
-from cv2x_marl.io import InputFileError, read_text_limited, write_json
+from cv2x_marl.experiments.simulate import expected_link_rows, write_parquet
+from cv2x_marl.io import InputFileError, atomic_write, read_text_limited, write_json
 from cv2x_marl.regression import MAX_NSV_CAP, FitData, FitError, TwoDistanceModel, fit_two_distance
+from cv2x_marl.regression.model import MODEL_FILE
+
+# re-exported for env/mobility_env.py only (it imports it from here); every other caller imports
+# cv2x_marl.regression.model.load_model; drop this line once mobility_env.py does too
+from cv2x_marl.regression.model import load_model as load_model
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import RunFolder, previous_run_aside, sha256_file
 from cv2x_marl.sim import Simulator
+from cv2x_marl.sim.memory import ENV_LIMIT, estimate_memory_bytes, memory_limit
+from cv2x_marl.sim.memory import format_bytes as _gb
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.yamlcore import load_json
 
@@ -135,9 +142,6 @@ def estimate_dataset_bytes(cfg: ScenarioConfig, runs: int, aggregate: bool = Fal
         ``rows_per_run``, ``rows`` (all runs), ``samples`` (bytes of the samples and their
         concatenation), ``simulator`` (bytes of one run's simulator) and ``total`` (bytes).
     """
-    from cv2x_marl.experiments.simulate import expected_link_rows
-    from cv2x_marl.sim.memory import estimate_memory_bytes
-
     per_run = expected_link_rows(cfg, cfg.sim.n_subframes)
     rows = runs * per_run
     samples = rows * (2 * SAMPLE_ROW_BYTES + (AGGREGATE_ROW_BYTES if aggregate else 0)) + runs * RUN_OVERHEAD_BYTES
@@ -160,9 +164,6 @@ def check_dataset_memory(cfg: ScenarioConfig, runs: int, aggregate: bool = False
     Raises:
         ConfigError: naming ``--runs``, the estimate, the limit and how many runs fit.
     """
-    from cv2x_marl.sim.memory import ENV_LIMIT, memory_limit
-    from cv2x_marl.sim.memory import format_bytes as _gb
-
     est = estimate_dataset_bytes(cfg, runs, aggregate)
     checked = memory_limit(est["total"])
     if checked is None or est["total"] <= checked[0]:
@@ -391,9 +392,6 @@ def _table3_md(model: TwoDistanceModel) -> str:
     return "\n".join(lines) + "\n"
 
 
-MODEL = "model.json"
-
-
 def run_fit(
     data_dir: Path,
     out_dir: Path,
@@ -417,7 +415,7 @@ def run_fit(
     out_dir = Path(out_dir)
     if out_dir.suffix == ".json":
         raise FitError(
-            f"fit --out is a folder (it receives {MODEL}, tables and figures), got the file name {out_dir}; "
+            f"fit --out is a folder (it receives {MODEL_FILE}, tables and figures), got the file name {out_dir}; "
             f"use e.g. --out {out_dir.with_suffix('')}"
         )
     if not 0 <= nsv_cap <= MAX_NSV_CAP:
@@ -460,8 +458,6 @@ def _fit(
     compare: bool,
     figures: bool,
 ) -> dict[str, Any]:
-    from cv2x_marl.io import atomic_write
-
     data = fit_data(cols, target)
     kinds = [kind] + ([k for k in ("linear", "logistic") if k != kind] if compare else [])
     models = {k: fit_two_distance(data, k, nsv_cap, test_fraction, seed, min_samples) for k in kinds}
@@ -478,7 +474,7 @@ def _fit(
             "nsv_cap": nsv_cap,
         }
     )
-    model_path = out_dir / MODEL
+    model_path = out_dir / MODEL_FILE
     model.save(model_path)
     atomic_write(out_dir / "table2.md", lambda p: p.write_text(_table2_md(model)))
     atomic_write(out_dir / "table3.md", lambda p: p.write_text(_table3_md(model)))
@@ -498,13 +494,3 @@ def _fit(
         plot_surface(model, out_dir / "fig2_surface.png")
         plot_fit_quality(model, out_dir / "fit_quality.png")
     return result
-
-
-def load_model(path: Path | str) -> TwoDistanceModel:
-    """Load a model: ``paper-table2`` (the preset), a fit folder (its ``model.json``) or a model file."""
-    if str(path) == "paper-table2":
-        return TwoDistanceModel.paper_table2()
-    path = Path(path)
-    if path.is_dir():
-        path = path / MODEL
-    return TwoDistanceModel.load(path)

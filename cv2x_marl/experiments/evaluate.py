@@ -8,6 +8,7 @@ study are directly comparable.
 from __future__ import annotations
 
 import csv
+import json
 import sys
 import time
 from collections.abc import Iterator
@@ -18,19 +19,14 @@ import numpy as np
 
 from cv2x_marl.checks import is_int
 from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
 from cv2x_marl.io import atomic_write, write_json
-from cv2x_marl.policies.base import BatchPolicy, Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.runs import check_file, run_folder
-
-ENV_IDS = (
-    "cv2x/Mobility-v0",
-    "cv2x/SingleMover-v0",
-    "cv2x/Mobility-v1",
-    "cv2x/SingleMover-v1",
-    "cv2x/Mobility-v2",
-    "cv2x/SingleMover-v2",
-)
-
+from cv2x_marl.policies.base import Policy
+from cv2x_marl.policies.baselines import is_baseline_file, load_baseline, make_baseline_policy
+from cv2x_marl.policies.optimum import OptimumPolicy, best_response_targets
+from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
+from cv2x_marl.regression.model import PAPER_MODEL
+from cv2x_marl.runs import run_folder
 
 #: most per-mover rows (episodes x movers) one evaluation keeps: they stay in memory for the summary
 #: and ``episodes.csv``, about :data:`ROW_BYTES` each, so about 1 GB at the limit
@@ -60,93 +56,10 @@ def check_episodes(episodes: int, movers: int) -> None:
         )
 
 
-def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
-    """The parallel env behind a registered id (SingleMover: only vehicle 0 moves; v1, v2: their defaults)."""
-    from cv2x_marl.env.mobility_env import VERSION_DEFAULTS
-
-    if env_id not in ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
-    if env_id.startswith("cv2x/SingleMover"):
-        kwargs = {**kwargs, "movers": [0]}
-    kwargs = {**VERSION_DEFAULTS[env_id.rsplit("-", 1)[1]], **kwargs}
-    return MobilityEnv(**kwargs)
-
-
-def make_policy(spec: str, env: MobilityEnv, model_path: str = "paper-table2", delta: float = 100.0) -> Policy:
-    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH``."""
-    from cv2x_marl.experiments.dataset import load_model
-    from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
-
-    if spec == "static":
-        return StaticPolicy()
-    if spec == "random":
-        return RandomPolicy()
-    if spec in ("gbmu", "greedy"):
-        model = load_model(Path(model_path))
-        return GbmuPolicy(model, env.layout, env.max_step_m, delta=delta, fairness=spec == "gbmu")
-    if spec == "oracle":
-        return OraclePolicy(env, delta=delta)
-    if spec == "optimum":
-        from cv2x_marl.policies.optimum import OptimumPolicy
-
-        return OptimumPolicy(env)
-    if spec in ("planner", "sensing"):
-        from cv2x_marl.policies.optimum import PlannerPolicy
-
-        estimator = "model" if spec == "planner" else "sensing"
-        return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)
-    if spec.startswith("ppo:"):
-        return PpoPolicy(Path(spec[4:]), env)
-    raise ValueError(
-        f"unknown policy {spec!r}; policies: static, random, gbmu, greedy, oracle, planner, sensing, optimum, ppo:PATH"
-    )
-
-
-class PpoPolicy(BatchPolicy):
-    """A stable-baselines3 PPO model (shared across agents) acting deterministically.
-
-    Args:
-        path: the ``.zip`` written by ``cv2x-marl train`` (or any SB3 PPO save).
-        env: the env it will act in; its observation and action spaces must match the model's.
-    """
-
-    def __init__(self, path: Path | Any, env: MobilityEnv | None = None) -> None:
-        super().__init__(self._predict, "ppo")
-        if not isinstance(path, str | Path):  # an already loaded model
-            self.model = path
-        else:
-            path = Path(path)
-            if not path.exists():
-                raise ValueError(f"PPO model file {path} does not exist")
-            check_file(path)  # against the checksum in the run folder's run.json, when it has one
-            from cv2x_marl.extras import require
-
-            PPO = require("stable_baselines3", f"loading the PPO model {path}").PPO
-
-            try:
-                self.model = PPO.load(str(path), device="cpu")
-            except Exception as exc:  # any load failure is reported with the file name
-                raise ValueError(f"cannot load PPO model {path}: {type(exc).__name__}: {exc}") from exc
-        if env is not None:
-            want = env.observation_space(env.possible_agents[0]).shape
-            got = self.model.observation_space.shape
-            if want != got:
-                raise ValueError(
-                    f"PPO model {path} expects observations of shape {got}, the env gives {want} "
-                    "(another vehicle count or n_neighbours?)"
-                )
-
-    def _predict(self, obs: np.ndarray) -> np.ndarray:
-        act, _ = self.model.predict(obs, deterministic=True)
-        return np.asarray(act)
-
-
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
     """The env id and the options that shape observations, actions and dynamics of a model saved by
     ``cv2x-marl train`` (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3
     file). The reward options are not taken: every method is judged on the same utility."""
-    import json
-
     cfg_path = Path(path).parent / "train_config.json"
     if not cfg_path.exists():
         return None, {}
@@ -174,8 +87,6 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
 
 def optimum_utilities(env: MobilityEnv) -> np.ndarray:
     """[N] every vehicle's utility (env units) with the movers at the optimum policy's targets."""
-    from cv2x_marl.policies.optimum import OptimumPolicy, best_response_targets
-
     ref = OptimumPolicy(env)
     movers = [int(i) for i in np.flatnonzero(env.mover_mask)]
     targets = best_response_targets(env, movers, ref.rounds, ref.grid_m, ref.refine)
@@ -189,7 +100,7 @@ def evaluate(
     seed: int,
     out_dir: Path | None = None,
     env_kwargs: dict[str, Any] | None = None,
-    model_path: str = "paper-table2",
+    model_path: str = PAPER_MODEL,
     delta: float = 100.0,
     progress: bool = True,
     vs_optimum: bool = False,
@@ -204,8 +115,8 @@ def evaluate(
     Args:
         env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on or a baseline
             file names, else ``cv2x/SingleMover-v2``.
-        policy_spec: a policy name (:func:`make_policy`), ``ppo:PATH``, a baseline file
-            (``baselines/NAME.yaml``, :mod:`cv2x_marl.experiments.baselines`: its policy, model,
+        policy_spec: a policy name (:func:`~cv2x_marl.policies.registry.make_policy`), ``ppo:PATH``, a baseline
+            file (``baselines/NAME.yaml``, :mod:`cv2x_marl.policies.baselines`: its policy, model,
             delta, env id and env options; ``env_kwargs`` override the latter) or a policy object.
         vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
             (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
@@ -216,8 +127,6 @@ def evaluate(
     """
     from tqdm import tqdm
 
-    from cv2x_marl.experiments.baselines import is_baseline_file, load_baseline, make_baseline_policy
-
     check_episodes(episodes, 1)  # the count itself; with the env's movers below
     env_kwargs = dict(env_kwargs or {})
     spec = None
@@ -226,15 +135,15 @@ def evaluate(
         env_id = env_id or spec.env_id
         env_kwargs = {**spec.env, **env_kwargs}
         policy_spec, model_path, delta = spec.policy, spec.model, spec.delta
-    if isinstance(policy_spec, str) and policy_spec.startswith("ppo:"):
-        trained_id, trained_env = trained_env_options(Path(policy_spec[4:]))
+    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
+        trained_id, trained_env = trained_env_options(Path(policy_spec[len(PPO_PREFIX) :]))
         env_id = env_id or trained_id
         env_kwargs = {**trained_env, **env_kwargs}
-    env_id = env_id or "cv2x/SingleMover-v2"
+    env_id = env_id or DEFAULT_ENV_ID
     inputs = [Path(model_path)]  # the files read: --out may not be, contain or lie inside one
-    if isinstance(policy_spec, str) and policy_spec.startswith("ppo:"):
-        inputs.append(Path(policy_spec[4:]))
-    env = make_eval_env(env_id, **env_kwargs)
+    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
+        inputs.append(Path(policy_spec[len(PPO_PREFIX) :]))
+    env = make_parallel_env(env_id, **env_kwargs)
     if spec is not None:  # its model (a shipped name or a file) and its step schedule
         policy = make_baseline_policy(spec, env)
     elif isinstance(policy_spec, str):
@@ -245,8 +154,6 @@ def evaluate(
     movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
     check_episodes(episodes, len(movers))
     if vs_optimum:  # its search is refused here, before the run folder, when too large
-        from cv2x_marl.policies.optimum import OptimumPolicy
-
         OptimumPolicy(env)
     params = {"env_id": env_id, "policy": str(policy_spec), "episodes": episodes, "seed": seed}
     with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params, inputs=inputs):

@@ -38,11 +38,13 @@ from cv2x_marl.policies.gbmu import (
     gbmu_direction,
     oracle_direction,
 )
-from cv2x_marl.regression.model import TwoDistanceModel
+from cv2x_marl.policies.optimum import ModelRow, ReachableSet, best_reachable
+from cv2x_marl.regression.model import TwoDistanceModel, load_shipped_model
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator, Snapshot
 from cv2x_marl.sim.evaluate import MoverLinks
+from cv2x_marl.sim.road import Road
 from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, utility_log
 
 CASES = ("seven-node", "snapshot", "realizations")
@@ -79,8 +81,6 @@ def study_bytes(cfg: ScenarioConfig, realizations: int, iterations: int, n_metho
 
 def scene_diagonal_m(cfg: ScenarioConfig) -> tuple[float, str]:
     """The diagonal of the scenario's road box (m) and the box in words."""
-    from cv2x_marl.sim.road import Road
-
     box = np.asarray(Road.from_config(cfg.road).box_m, dtype=np.float64)
     box = np.where(np.isfinite(box), box, box[0])
     return float(np.hypot(*box)), f"{box[0]:g} m x {box[1]:g} m"
@@ -220,8 +220,6 @@ class Judge:
         """Mover ``b``'s utility at many positions, for :func:`~cv2x_marl.policies.optimum.best_reachable`."""
         if self.kind == "simulator":
             return _SnapshotRow(self.links, b)
-        from cv2x_marl.policies.optimum import ModelRow
-
         i = self.inputs
         return ModelRow(i.rx_m[b], i.l_m[b], i.nsv[b], i.mask[b], self.model)
 
@@ -247,8 +245,6 @@ def run_methods(
     jd = Judge(judge, links, inputs, model)
     variant_model: TwoDistanceModel | None = None
     if any("logistic" in name for name in methods):
-        from cv2x_marl.experiments.baselines import load_shipped_model
-
         variant_model = load_shipped_model(VARIANT_MODEL)
     out: dict[str, MethodRun] = {}
     for name in methods:
@@ -339,8 +335,6 @@ def optimum_climb(
     iteration 1 and stays there, so its curve is the level the climbers are measured against.
     """
     from tqdm import tqdm
-
-    from cv2x_marl.policies.optimum import ReachableSet, best_reachable
 
     start = links.start_m
     target = links.target if judge is None else judge.target

@@ -21,7 +21,13 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.config import preset
+from cv2x_marl.experiments.dataset import build_dataset, run_fit
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.experiments.gbmu_study import run_study
+from cv2x_marl.extras import missing_extra
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.regression.model import load_model
+from cv2x_marl.runs import RunFolder
 
 SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
 ENVS = {"single": "cv2x/SingleMover-v2", "multi": "cv2x/Mobility-v2"}
@@ -70,8 +76,6 @@ def check_models(models_dir: Path | None) -> dict[str, list[Path]]:
         raise ValueError(f"--models {models_dir} holds no {' and no '.join(missing)}; expected {expected} {hint}")
     import importlib.util
 
-    from cv2x_marl.extras import missing_extra
-
     if importlib.util.find_spec("stable_baselines3") is None:
         raise missing_extra("stable_baselines3", f"evaluating the PPO models of --models {models_dir}")
     return models
@@ -103,8 +107,6 @@ def reproduce(
 
     ``models_dir`` is checked first (:func:`check_models`; None: no PPO rows): a missing folder or
     missing models are refused before ``out`` is touched."""
-    from cv2x_marl.runs import RunFolder
-
     models = check_models(models_dir)
     params = {"quick": quick, "seed": seed, "models_dir": None if models_dir is None else str(models_dir)}
     inputs = [] if models_dir is None else [models_dir]
@@ -114,9 +116,6 @@ def reproduce(
 
 def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]], progress: bool) -> dict[str, Any]:
     from cv2x_marl import plotting
-    from cv2x_marl.experiments.dataset import build_dataset, load_model, run_fit
-    from cv2x_marl.experiments.evaluate import evaluate
-    from cv2x_marl.experiments.gbmu_study import run_study
 
     t0 = time.perf_counter()
     settings = {

@@ -13,10 +13,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import cv2x_marl
-from cv2x_marl.config import ScenarioConfig, to_dict
+from cv2x_marl.config import ScenarioConfig, apply_overrides, to_dict
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator
+from cv2x_marl.sim.memory import LINK_ROW_BYTES, estimate_memory_bytes
+from cv2x_marl.sim.simulator import LINK_COLUMNS
 
 
 def links_table(links: dict[str, np.ndarray]) -> pa.Table:
@@ -88,9 +90,6 @@ LINKS_CHOICES = ("auto", "on", "off")
 def expected_link_rows(cfg: ScenarioConfig, n_subframes: int) -> int:
     """Rows the links table of a run would have (one per transmission and receiver in range), from
     the memory model's pair count (:func:`cv2x_marl.sim.memory.estimate_memory_bytes`)."""
-    from cv2x_marl.config import apply_overrides
-    from cv2x_marl.sim.memory import LINK_ROW_BYTES, estimate_memory_bytes
-
     on = cfg if cfg.metrics.record_links else apply_overrides(cfg, ["metrics.record_links=true"])
     return int(estimate_memory_bytes(on, n_subframes)["links_table"] // (2 * LINK_ROW_BYTES))
 
@@ -115,8 +114,6 @@ def simulate(
             rows, skipped above (the summary's ``links_table`` says so and why). Without ``out_dir``
             the table is never built (nowhere to write it), whatever ``links`` says.
     """
-    from cv2x_marl.config import apply_overrides
-
     if links not in LINKS_CHOICES:
         raise ValueError(f"links must be one of {', '.join(LINKS_CHOICES)}, got {links!r}")
     note: dict[str, Any] | None = None
@@ -254,8 +251,6 @@ def _simulate(
         if occ is not None:
             write_parquet(occ, out_dir / "slots.parquet")
         if cfg.metrics.record_links and writer is not None:
-            from cv2x_marl.sim.simulator import LINK_COLUMNS
-
             writer.close({c: np.empty(0) for c in LINK_COLUMNS})
         write_json(out_dir / "summary.json", summary)
         from cv2x_marl.plotting import plot_prr_vs_distance

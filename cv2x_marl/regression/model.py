@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -245,6 +246,39 @@ class TwoDistanceModel:
                 f"model file {path} does not match its SHA-256: the file was edited or corrupted; refit it"
             )
         return cls.from_dict(payload, source=f"model file {path}")
+
+
+#: the model file of a fit folder (``cv2x-marl fit --out DIR`` writes ``DIR/model.json``)
+MODEL_FILE = "model.json"
+#: the paper's Table 2 coefficients, as a model name (:meth:`TwoDistanceModel.paper_table2`)
+PAPER_MODEL = "paper-table2"
+#: two-distance models shipped as package data (``cv2x_marl/regression/data/NAME.json``)
+SHIPPED_MODELS = ("linear-fit", "logistic-fit")
+
+
+def resolve_model(model: str) -> str:
+    """A model name as :func:`load_model` reads it: a shipped model's name (:data:`SHIPPED_MODELS`)
+    becomes its package-data path; anything else is returned as is."""
+    if model not in SHIPPED_MODELS:
+        return model
+    return str(resources.files("cv2x_marl.regression") / "data" / f"{model}.json")
+
+
+def load_model(path: Path | str) -> TwoDistanceModel:
+    """Load a model: ``paper-table2`` (the preset), a fit folder (its ``model.json``) or a model file."""
+    if str(path) == PAPER_MODEL:
+        return TwoDistanceModel.paper_table2()
+    path = Path(path)
+    if path.is_dir():
+        path = path / MODEL_FILE
+    return TwoDistanceModel.load(path)
+
+
+def load_shipped_model(name: str) -> TwoDistanceModel:
+    """The shipped :class:`TwoDistanceModel` ``name`` (:data:`SHIPPED_MODELS`)."""
+    if name not in SHIPPED_MODELS:
+        raise ValueError(f"unknown shipped model {name!r}; shipped models: {', '.join(SHIPPED_MODELS)}")
+    return TwoDistanceModel.load(resolve_model(name))
 
 
 _COEFS = ("alpha", "beta", "gamma")

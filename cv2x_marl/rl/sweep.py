@@ -97,7 +97,8 @@ def _trial_name(seed: int, point: dict[str, Any]) -> str:
 
 def _trial(spec: dict[str, Any]) -> dict[str, Any]:
     """One trial: train, then evaluate the model on held-out episodes. Runs in a Ray worker."""
-    from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+    from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.policies.ppo import PpoPolicy
     from cv2x_marl.rl.train import train
 
     cfg: TrainConfig = spec["cfg"]

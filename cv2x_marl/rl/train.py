@@ -23,17 +23,9 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import as_real, is_int
+from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.rl.errors import TrainError
-
-ENV_IDS = (
-    "cv2x/SingleMover-v0",
-    "cv2x/Mobility-v0",
-    "cv2x/SingleMover-v1",
-    "cv2x/Mobility-v1",
-    "cv2x/SingleMover-v2",
-    "cv2x/Mobility-v2",
-)
 
 #: the most env copies a run may ask for (``copies``, ``--copies``): each copy holds its own
 #: simulator state (measured about 0.33 MB on the ``paper`` preset, 14 MB on ``highway``) and is
@@ -264,11 +256,11 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
 
 def make_vec_env(cfg: TrainConfig) -> Any:
     """The agents x copies VecEnv of a training configuration."""
-    from cv2x_marl.experiments.evaluate import make_eval_env
+    from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.rl.vec_env import AgentsVecEnv
 
     env = cfg.env_for_training()
-    return AgentsVecEnv(lambda: make_eval_env(cfg.env_id, **env), cfg.copies, start_pool=cfg.start_pool)
+    return AgentsVecEnv(lambda: make_parallel_env(cfg.env_id, **env), cfg.copies, start_pool=cfg.start_pool)
 
 
 def probe_env(cfg: TrainConfig) -> Any:
@@ -279,10 +271,10 @@ def probe_env(cfg: TrainConfig) -> Any:
             allowed values), or copies that cannot share a process.
     """
     from cv2x_marl.env.mobility_env import check_copies
-    from cv2x_marl.experiments.evaluate import make_eval_env
+    from cv2x_marl.env.registry import make_parallel_env
 
     try:
-        env = make_eval_env(cfg.env_id, **cfg.env_for_training())
+        env = make_parallel_env(cfg.env_id, **cfg.env_for_training())
         check_copies(env, cfg.copies)
     except (ValueError, TypeError) as exc:
         raise TrainError(f"train.env of {cfg.env_id}: {exc}") from exc
@@ -489,7 +481,8 @@ def _callbacks(
 ) -> list[Any]:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+    from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.policies.ppo import PpoPolicy
 
     class Checkpoint(BaseCallback):
         """Atomic checkpoints every ``checkpoint_every`` steps (a crash never leaves a half file)."""
@@ -741,7 +734,8 @@ def _train(
                 f"{run_dir / 'checkpoints'} (continue with --resume)"
             )
     save_model(model, run_dir / "model.zip")
-    from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate
+    from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.policies.ppo import PpoPolicy
 
     final = evaluate(cfg.env_id, PpoPolicy(model), cfg.eval_episodes, cfg.eval_seed, None, cfg.env, progress=False)
     record = {

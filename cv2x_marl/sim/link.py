@@ -29,27 +29,25 @@ from importlib import resources
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cv2x_marl.config import PER_CURVES, PER_INTERPOLATIONS
 from cv2x_marl.sim import kernels
 
 FloatArray = NDArray[np.float64]
 
-PER_CURVES: tuple[str, ...] = ("r1-160284-190b-r0.5", "r1-160284-190b-r0.7")
 #: the shipped PSCCH (SCI) BLER curve (``cv2x_marl/sim/data/<name>.csv``, source in its header)
 PSCCH_CURVE = "nist-pscch-awgn-siso"
-#: ways of interpolating a PER table between its points (``link.per_interpolation``)
-PER_INTERPOLATIONS: tuple[str, ...] = ("linear", "log")
 
 
 @dataclass(frozen=True)
 class PerCurve:
     """A PER(SINR) table: ``sinr_db`` ascending [K], ``per`` [K], where it comes from, and how it
-    is interpolated between its points (:data:`PER_INTERPOLATIONS`)."""
+    is interpolated between its points (:data:`cv2x_marl.config.PER_INTERPOLATIONS`)."""
 
     name: str
     sinr_db: FloatArray
     per: FloatArray
     source: str
-    interpolation: str = "linear"
+    interpolation: str
 
     def success(self, sinr_db: ArrayLike) -> FloatArray:
         """``1 - PER`` at ``sinr_db`` (any shape): PER 1 below the table, the last PER above it.
@@ -87,13 +85,15 @@ def _read_curve(name: str, what: str) -> tuple[FloatArray, str]:
 
 
 @functools.cache
-def load_per_curve(name: str, interpolation: str = "linear") -> PerCurve:
-    """Read a shipped PER curve by name (see :data:`PER_CURVES`).
+def load_per_curve(name: str, interpolation: str) -> PerCurve:
+    """Read a shipped PER curve by name (see :data:`cv2x_marl.config.PER_CURVES`).
 
     Args:
         name: the curve (file ``cv2x_marl/sim/data/<name>.csv``).
         interpolation: between table points, ``linear`` (PER) or ``log`` (``ln PER``); see
-            :data:`PER_INTERPOLATIONS` and the module docstring.
+            :data:`cv2x_marl.config.PER_INTERPOLATIONS` and the module docstring. No default: the
+            configuration's (``link.per_interpolation``, ``log``) is not the paper presets' (``linear``),
+            so every caller says which.
     """
     if name not in PER_CURVES:
         raise ValueError(f"unknown PER curve {name!r}; available: {', '.join(PER_CURVES)}")

@@ -4,7 +4,7 @@
   Gonzalez-Martin et al., IEEE TVT 68(2), 2019 (numpy/scipy only; imports nothing from
   :mod:`cv2x_marl.sim`, so it checks the simulator rather than restating it).
 * :mod:`cv2x_marl.validation.compare`: runs the simulator on the analytical model's highway and
-  writes PDR(d) and loss causes of both (``python -m cv2x_marl.validation.compare --out DIR``).
+  writes PDR(d) and loss causes of both (``cv2x-marl validate --out DIR``).
 """
 
 from cv2x_marl.validation.mode4_analytical import (

@@ -11,9 +11,9 @@ and what differs is in ``docs/validation.md``), evaluates
 * ``table.csv``: PDR and the four loss shares at 50/100/200/300/400 m;
 * ``pdr_<density>.png``: one figure per density (PDR and loss causes, both sources).
 
-Usage::
+Usage (the command line's ``validate``, which runs :func:`run_validation` in a run folder)::
 
-    python -m cv2x_marl.validation.compare --out /tmp/validation
+    cv2x-marl validate --out /tmp/validation
 
 Every file is written to a temporary name in ``--out`` and renamed into place.
 """
@@ -33,6 +33,9 @@ from typing import Any
 
 import numpy as np
 
+from cv2x_marl.config import apply_overrides, from_dict, preset
+from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.simulator import Simulator
 from cv2x_marl.validation.mode4_analytical import PAPER_FORMATS, analytical_pdr
 
 #: distances of the comparison tables, m
@@ -143,10 +146,6 @@ def run_simulator(
         ``n`` [B] link samples per 10 m bin, ``decoded`` [B], and one [B] count per loss cause
         (our names), plus ``n_vehicles`` (0-d).
     """
-    from cv2x_marl.config import apply_overrides, from_dict, preset
-    from cv2x_marl.sim.metrics import CAUSE_CODE
-    from cv2x_marl.sim.simulator import Simulator
-
     cfg = apply_overrides(from_dict(overrides, preset("highway-legacy")), extra_sets)
     n_bins = round(MAX_DISTANCE_M / BIN_M)
     out = {k: np.zeros(n_bins, dtype=np.int64) for k in ("n", "decoded", *(c for c, _ in CAUSES))}
@@ -387,17 +386,3 @@ def run_validation(
     for p in paths:
         print(p)
     return paths
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m cv2x_marl.validation.compare [options]``: the same as ``cv2x-marl validate [options]``
-    (one set of options, the CLI's)."""
-    import sys
-
-    from cv2x_marl.cli import main as cli_main
-
-    return cli_main(["validate", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env import mobility_env
-from cv2x_marl.experiments.evaluate import make_eval_env
+from cv2x_marl.env.registry import make_parallel_env
 
 KW = {
     "max_cycles": 12,
@@ -29,8 +29,8 @@ def _episode(env, seed: int) -> list[np.ndarray]:  # type: ignore[no-untyped-def
 
 def test_cached_starts_are_bit_identical_to_computed_ones() -> None:
     mobility_env._START_CACHE.clear()
-    plain = make_eval_env("cv2x/SingleMover-v2", **KW)
-    cached = make_eval_env("cv2x/SingleMover-v2", reset_cache=4, **KW)
+    plain = make_parallel_env("cv2x/SingleMover-v2", **KW)
+    cached = make_parallel_env("cv2x/SingleMover-v2", reset_cache=4, **KW)
     for seed in (3, 4, 3, 4):  # the second visit of each seed is served from the cache
         a, b = _episode(plain, seed), _episode(cached, seed)
         assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
@@ -40,13 +40,13 @@ def test_cached_starts_are_bit_identical_to_computed_ones() -> None:
 
 def test_the_cache_is_bounded_and_keyed_by_what_the_start_depends_on() -> None:
     mobility_env._START_CACHE.clear()
-    env = make_eval_env("cv2x/SingleMover-v2", reset_cache=2, **KW)
+    env = make_parallel_env("cv2x/SingleMover-v2", reset_cache=2, **KW)
     for seed in range(5):
         env.reset(seed=seed)
     assert len(mobility_env._START_CACHE) == 2  # least recently used starts dropped
-    other = make_eval_env("cv2x/SingleMover-v2", reset_cache=2, **{**KW, "max_cycles": 30})
+    other = make_parallel_env("cv2x/SingleMover-v2", reset_cache=2, **{**KW, "max_cycles": 30})
     other.reset(seed=4)  # another reach: another plan, not the cached one
-    fresh = make_eval_env("cv2x/SingleMover-v2", **{**KW, "max_cycles": 30})
+    fresh = make_parallel_env("cv2x/SingleMover-v2", **{**KW, "max_cycles": 30})
     fresh.reset(seed=4)
     np.testing.assert_array_equal(other.plan_m, fresh.plan_m)
 
@@ -54,9 +54,9 @@ def test_the_cache_is_bounded_and_keyed_by_what_the_start_depends_on() -> None:
 @pytest.mark.parametrize("value", [-1, 1.5, True, "8"])
 def test_bad_reset_cache_is_refused_by_name(value: object) -> None:
     with pytest.raises(ValueError, match="invalid env argument reset_cache="):
-        make_eval_env("cv2x/SingleMover-v2", reset_cache=value, **KW)
+        make_parallel_env("cv2x/SingleMover-v2", reset_cache=value, **KW)
     with pytest.raises(ValueError, match="reset_cache"):
-        make_eval_env("cv2x/Mobility-v0", mode="traffic", reset_cache=4, overrides=KW["overrides"])
+        make_parallel_env("cv2x/Mobility-v0", mode="traffic", reset_cache=4, overrides=KW["overrides"])
 
 
 def test_start_pool_draws_episodes_from_n_seeds() -> None:

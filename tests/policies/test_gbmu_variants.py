@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from cv2x_marl.config import preset
-from cv2x_marl.experiments.baselines import SHIPPED_MODELS, load_shipped_model
 from cv2x_marl.experiments.gbmu_study import VARIANTS, run_study
 from cv2x_marl.policies.gbmu import (
     GbmuInputs,
@@ -18,6 +17,7 @@ from cv2x_marl.policies.gbmu import (
     gbmu_direction,
 )
 from cv2x_marl.regression import TwoDistanceModel
+from cv2x_marl.regression.model import SHIPPED_MODELS, load_shipped_model
 
 PAPER = TwoDistanceModel.paper_table2()
 LN10 = math.log(10.0)
@@ -233,9 +233,9 @@ def test_study_reports_every_variant_against_the_optimum() -> None:
 
 
 def _env_and_obs():  # type: ignore[no-untyped-def]
-    from cv2x_marl.experiments.evaluate import make_eval_env
+    from cv2x_marl.env.registry import make_parallel_env
 
-    env = make_eval_env("cv2x/SingleMover-v2", max_cycles=4, overrides=["sim.warmup_subframes=200"])
+    env = make_parallel_env("cv2x/SingleMover-v2", max_cycles=4, overrides=["sim.warmup_subframes=200"])
     obs, _ = env.reset(seed=3)
     return env, {"vehicle_0": obs["vehicle_0"]}
 

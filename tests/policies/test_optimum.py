@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env import MobilityEnv
-from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
+from cv2x_marl.env.registry import make_parallel_env
+from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.policies.optimum import OptimumPolicy, ReachableSet, best_reachable, reachable_set
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
@@ -65,7 +66,7 @@ def test_optimum_policy_reaches_its_target_and_is_never_beaten() -> None:
 
 
 def test_best_response_for_several_movers() -> None:
-    env = make_eval_env("cv2x/Mobility-v1", max_cycles=4, **FAST)
+    env = make_parallel_env("cv2x/Mobility-v1", max_cycles=4, **FAST)
     env.reset(seed=0)
     pol = OptimumPolicy(env, rounds=1, grid_m=10.0)
     acts = pol.act({a: None for a in env.agents})  # type: ignore[misc]

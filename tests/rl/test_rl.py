@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env import parallel_env
-from cv2x_marl.experiments.evaluate import PpoPolicy, evaluate, make_eval_env
+from cv2x_marl.env.registry import make_parallel_env
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.train import PpoConfig, TrainConfig, latest_checkpoint, load_train_config, parameters_digest, train
 from cv2x_marl.rl.vec_env import AgentsVecEnv
@@ -105,7 +107,7 @@ def test_ppo_seed_gives_identical_parameters(tmp_path: Path) -> None:
 
     digests = []
     for k in range(2):
-        env = AgentsVecEnv(lambda: make_eval_env(TINY.env_id, **TINY.env), 2)
+        env = AgentsVecEnv(lambda: make_parallel_env(TINY.env_id, **TINY.env), 2)
         model = PPO(
             "MlpPolicy",
             env,
@@ -188,14 +190,14 @@ def test_short_training_beats_random(tmp_path: Path) -> None:
 def test_bad_model_files_and_configs(tmp_path: Path) -> None:
     bad = tmp_path / "bad.zip"
     bad.write_bytes(b"not a zip")
-    env = make_eval_env("cv2x/SingleMover-v0", **FAST_ENV)
+    env = make_parallel_env("cv2x/SingleMover-v0", **FAST_ENV)
     with pytest.raises(ValueError, match=r"bad\.zip"):
         PpoPolicy(bad, env)
     with pytest.raises(ValueError, match="does not exist"):
         PpoPolicy(tmp_path / "none.zip", env)
     run = tmp_path / "run"
     train(TINY, 32, seed=0, run_dir=run, progress=False)
-    other = make_eval_env("cv2x/SingleMover-v0", n_neighbours=5, **FAST_ENV)
+    other = make_parallel_env("cv2x/SingleMover-v0", n_neighbours=5, **FAST_ENV)
     with pytest.raises(ValueError, match="expects observations of shape"):
         PpoPolicy(run / "model.zip", other)
     f = tmp_path / "c.yaml"

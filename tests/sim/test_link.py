@@ -7,7 +7,7 @@ from cv2x_marl.sim import link
 
 
 def test_per_table_points_r05() -> None:
-    curve = link.load_per_curve("r1-160284-190b-r0.5")
+    curve = link.load_per_curve("r1-160284-190b-r0.5", "linear")
     table = {-2: 1.0, 0: 0.9, 2: 0.7, 4: 0.3, 6: 0.09, 8: 0.02, 10: 0.002, 12: 0.001}
     for sinr, per in table.items():
         assert curve.success(sinr) == pytest.approx(1.0 - per)
@@ -18,7 +18,7 @@ def test_per_table_points_r05() -> None:
 
 
 def test_per_table_points_r07() -> None:
-    curve = link.load_per_curve("r1-160284-190b-r0.7")
+    curve = link.load_per_curve("r1-160284-190b-r0.7", "linear")
     table = {0: 1.0, 2: 0.9, 4: 0.7, 6: 0.4, 8: 0.13, 10: 0.045, 12: 0.017, 14: 0.007, 16: 0.001}
     got = curve.success(np.array(list(table)))
     assert got == pytest.approx(1.0 - np.array(list(table.values())))
@@ -26,7 +26,7 @@ def test_per_table_points_r07() -> None:
 
 def test_unknown_curve_named() -> None:
     with pytest.raises(ValueError, match="nope"):
-        link.load_per_curve("nope")
+        link.load_per_curve("nope", "linear")
 
 
 def test_rayleigh_closed_form_against_monte_carlo() -> None:

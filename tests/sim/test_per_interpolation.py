@@ -19,7 +19,7 @@ R07 = "r1-160284-190b-r0.7"
 
 def test_seven_db_by_hand() -> None:
     # r0.5: 6 dB -> 0.09, 8 dB -> 0.02; halfway: linear (0.09 + 0.02) / 2, log sqrt(0.09 * 0.02)
-    lin = 1.0 - float(link.load_per_curve(R05).success(7.0))
+    lin = 1.0 - float(link.load_per_curve(R05, "linear").success(7.0))
     log = 1.0 - float(link.load_per_curve(R05, "log").success(7.0))
     assert lin == pytest.approx(0.055, abs=1e-15)
     assert log == pytest.approx(math.sqrt(0.09 * 0.02), rel=1e-12)
@@ -28,7 +28,7 @@ def test_seven_db_by_hand() -> None:
 
 @pytest.mark.parametrize("name", [R05, R07])
 def test_both_modes_equal_the_table_at_its_points(name: str) -> None:
-    lin, log = link.load_per_curve(name), link.load_per_curve(name, "log")
+    lin, log = link.load_per_curve(name, "linear"), link.load_per_curve(name, "log")
     np.testing.assert_allclose(1.0 - lin.success(lin.sinr_db), lin.per, rtol=0, atol=1e-15)
     np.testing.assert_allclose(1.0 - log.success(log.sinr_db), log.per, rtol=1e-12, atol=0)
 
@@ -43,7 +43,7 @@ def test_log_between_points_is_geometric(name: str) -> None:
     hand = curve.per[j] ** (1.0 - t) * curve.per[j + 1] ** t  # PER_j^(1-t) PER_{j+1}^t
     np.testing.assert_allclose(1.0 - curve.success(x), hand, rtol=1e-12)
     # never above the linear interpolation (a chord of a convex function in the log domain)
-    assert np.all(1.0 - curve.success(x) <= 1.0 - link.load_per_curve(name).success(x) + 1e-15)
+    assert np.all(1.0 - curve.success(x) <= 1.0 - link.load_per_curve(name, "linear").success(x) + 1e-15)
 
 
 def test_outside_the_table() -> None:
@@ -75,7 +75,7 @@ def test_compiled_kernel_agrees_with_numpy(name: str, interp: str, tolerances: A
 
 
 def test_linear_kernel_is_unchanged_by_the_new_argument() -> None:
-    curve = link.load_per_curve(R05)
+    curve = link.load_per_curve(R05, "linear")
     for v in (-1.0, 0.3, 7.0, 11.9):
         assert kernels.per_success(v, curve.sinr_db, curve.per) == kernels.per_success(
             v, curve.sinr_db, curve.per, False

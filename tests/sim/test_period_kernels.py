@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.config import PER_CURVES, apply_overrides, preset
 from cv2x_marl.sim import Simulator, kernels
-from cv2x_marl.sim.link import PER_CURVES, load_per_curve, load_pscch_curve
+from cv2x_marl.sim.link import load_per_curve, load_pscch_curve
 
 # every test here is rerun by `make test-portable` (numpy's baseline SIMD paths, numba's generic target).
 # Kernel against numpy: exact where both sides run the same arithmetic (libm's log10 / pow / exp through
@@ -438,7 +438,7 @@ def _chunk_args(rng: np.random.Generator, n: int, n_sub: int, rri: int, variant:
     slot = resource // n_sub
     active = rng.random(n) < 0.5
     n_res = n_sub * rri
-    curve = load_per_curve(PER_CURVES[0])
+    curve = load_per_curve(PER_CURVES[0], "linear")
     per_db, per = curve.sinr_db, curve.per
     sci_lin, sci_bler = np.empty(0), np.empty(0)
     leakage, flat = np.empty((0, 0)), 0.0

@@ -114,7 +114,7 @@ def test_loss_causes_are_consistent_with_common_random_numbers() -> None:
     assert links is not None
     cause = links["cause"]
     snr_db = links["rx_power_dbm"] + 103.45
-    p0 = load_per_curve("r1-160284-190b-r0.5").success(snr_db)
+    p0 = load_per_curve("r1-160284-190b-r0.5", "linear").success(snr_db)
     collision = cause == CAUSE_CODE["collision"]
     assert collision.sum() > 50 and (cause == CAUSE_CODE["propagation"]).sum() > 50
     # a collision is a loss that interference caused: SINR below SNR and P below P(no interference)

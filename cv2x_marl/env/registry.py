@@ -1,0 +1,204 @@
+"""The env ids, their versions, the factories behind them and their registration, in one place.
+
+Two families, three versions each (the versions' defaults are
+:data:`cv2x_marl.env.mobility_env.VERSION_DEFAULTS`):
+
+    cv2x/Mobility-vN      PettingZoo, every mover an agent (:class:`~cv2x_marl.env.mobility_env.MobilityEnv`)
+    cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:mod:`cv2x_marl.env.single`); vectorised
+                          by :mod:`cv2x_marl.env.vector` (``gymnasium.make_vec(..., "vector_entry_point")``)
+
+``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
+Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
+``cv2x_marl`` (and starting the CLI) imports neither (about 0.2 s). Entry points are import strings,
+so a fresh process (a Ray worker, a subprocess) resolves the Gymnasium ids with
+``gymnasium.make("cv2x_marl:cv2x/SingleMover-v2")``, which imports the package first; PettingZoo has
+no such syntax: frameworks take the factories (:func:`parallel_env`, :func:`parallel_env_v1`,
+:func:`parallel_env_v2`, re-exported by :mod:`cv2x_marl.env`) instead.
+
+This module imports only the standard library at its top, so the CLI reads :data:`ENV_IDS` for its
+``--env`` choices without importing the env (about 0.9 s measured: PettingZoo, numba, the simulator);
+the factories import :mod:`cv2x_marl.env.mobility_env` when called.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import sys
+import types
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+#: the env versions (observation version, reward form: :data:`~cv2x_marl.env.mobility_env.VERSION_DEFAULTS`)
+VERSIONS = ("v0", "v1", "v2")
+#: the PettingZoo ids (every mover an agent)
+MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
+#: the Gymnasium ids (vehicle 0 the only mover)
+SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
+#: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
+ENV_IDS = tuple(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair)
+#: the id commands run when none is given
+DEFAULT_ENV_ID = "cv2x/SingleMover-v2"
+#: Gymnasium classes per version: (entry point in :mod:`cv2x_marl.env.single`, vector entry point
+#: in :mod:`cv2x_marl.env.vector`)
+_GYM_CLASSES = {
+    "v0": ("SingleMoverEnv", "SingleMoverVectorEnv"),
+    "v1": ("SingleMoverEnvV1", "SingleMoverVectorEnvV1"),
+    "v2": ("SingleMoverEnvV2", "SingleMoverVectorEnvV2"),
+}
+
+
+def env_version(env_id: str) -> str:
+    """The version (``v0``, ``v1``, ``v2``) of a registered id; unknown ids are refused with the list."""
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
+    return env_id.rsplit("-", 1)[1]
+
+
+def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
+    """The parallel env behind a registered id with its version's defaults (SingleMover: only
+    vehicle 0 moves); ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults."""
+    from cv2x_marl.env.mobility_env import VERSION_DEFAULTS, MobilityEnv
+
+    version = env_version(env_id)
+    if env_id in SINGLE_MOVER_IDS:
+        kwargs = {**kwargs, "movers": [0]}
+    return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs})
+
+
+# -- PettingZoo factories (the entry points of cv2x/Mobility-vN) ------------------------------------
+
+
+def parallel_env(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v0``: the ParallelEnv; keyword arguments as :class:`MobilityEnv`."""
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+    return MobilityEnv(**kwargs)
+
+
+def parallel_env_v1(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v1``: the ParallelEnv with observation version 1 and improvement rewards."""
+    from cv2x_marl.env.mobility_env import mobility_v1
+
+    return mobility_v1(**kwargs)
+
+
+def parallel_env_v2(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v2``: the ParallelEnv with observation version 2 and improvement rewards."""
+    from cv2x_marl.env.mobility_env import mobility_v2
+
+    return mobility_v2(**kwargs)
+
+
+def raw_env(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v0`` without wrappers."""
+    from pettingzoo.utils.conversions import parallel_to_aec_wrapper
+
+    return parallel_to_aec_wrapper(parallel_env(**kwargs))
+
+
+def env(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v0`` with the order-enforcing wrapper (what ``parallel_to_aec`` returns)."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env(**kwargs))
+
+
+def env_v1(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v1`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_v1(**kwargs))
+
+
+def env_v2(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v2`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_v2(**kwargs))
+
+
+# -- registration -----------------------------------------------------------------------------------
+
+
+def _register_gymnasium() -> None:
+    import gymnasium
+
+    for version, env_id in zip(VERSIONS, SINGLE_MOVER_IDS, strict=True):
+        cls, vector_cls = _GYM_CLASSES[version]
+        if env_id not in gymnasium.registry:
+            gymnasium.register(
+                id=env_id,
+                entry_point=f"cv2x_marl.env.single:{cls}",
+                vector_entry_point=f"cv2x_marl.env.vector:{vector_cls}",
+            )
+
+
+def _register_pettingzoo() -> None:
+    import pettingzoo
+
+    for version, env_id in zip(VERSIONS, MOBILITY_IDS, strict=True):
+        suffix = "" if version == "v0" else f"_{version}"
+        for kind, entry in (("parallel", f"cv2x_marl.env:parallel_env{suffix}"), ("aec", f"cv2x_marl.env:env{suffix}")):
+            registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
+            if env_id not in registry:
+                pettingzoo.register(kind, env_id, entry_point=entry)
+
+
+class _RegisterAfter(importlib.abc.Loader):
+    """Loader wrapper: executes the module with its own loader, then registers our ids in it."""
+
+    def __init__(self, loader: importlib.abc.Loader, register: Callable[[], None]) -> None:
+        self._loader, self._register = loader, register
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> types.ModuleType | None:
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module: types.ModuleType) -> None:
+        self._loader.exec_module(module)
+        self._register()
+
+
+class _RegisterOnImport(importlib.abc.MetaPathFinder):
+    """Registers our ids when Gymnasium / PettingZoo is imported, so that ``import cv2x_marl`` (and the
+    CLI's start) does not import them (about 0.2 s) while ``gymnasium.make("cv2x/...")`` still works
+    whichever of the two packages is imported first."""
+
+    def __init__(self, hooks: dict[str, Callable[[], None]]) -> None:
+        self._hooks = hooks
+        self._busy: set[str] = set()
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None, target: types.ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        if fullname not in self._hooks or fullname in self._busy:
+            return None
+        self._busy.add(fullname)
+        try:
+            spec = importlib.util.find_spec(fullname)  # the real spec, from the finders after us
+        finally:
+            self._busy.discard(fullname)
+        if spec is None or spec.loader is None:
+            return None
+        register = self._hooks.pop(fullname)
+        if not self._hooks and self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec.loader = _RegisterAfter(spec.loader, register)
+        return spec
+
+
+def register_envs() -> None:
+    """Register our ids now in whichever of Gymnasium / PettingZoo is imported, later in the other."""
+    later: dict[str, Callable[[], None]] = {}
+    for name, register in (("gymnasium", _register_gymnasium), ("pettingzoo", _register_pettingzoo)):
+        if name in sys.modules:
+            register()
+        elif importlib.util.find_spec(name) is not None:  # base dependencies; a broken install registers nothing
+            later[name] = register
+    if later:
+        sys.meta_path.insert(0, _RegisterOnImport(later))

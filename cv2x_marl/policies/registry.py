@@ -1,0 +1,64 @@
+"""Policies by name: what ``--policy NAME`` builds for an env (:func:`make_policy`).
+
+    static | random     :mod:`cv2x_marl.policies.base` (no model)
+    gbmu | greedy       :class:`~cv2x_marl.policies.scripted.GbmuPolicy` on a two-distance model
+                        (gbmu: the paper's steps 1-5 with its fairness term; greedy: eq. 9 without it)
+    oracle              :class:`~cv2x_marl.policies.scripted.OraclePolicy` (the true gradient)
+    planner | sensing   :class:`~cv2x_marl.policies.optimum.PlannerPolicy` (the model's / the sensing
+                        plan's best reachable position)
+    optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator)
+    ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save)
+
+Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
+:mod:`cv2x_marl.policies.baselines`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
+from cv2x_marl.policies.optimum import OptimumPolicy, PlannerPolicy
+from cv2x_marl.policies.ppo import PpoPolicy
+from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+from cv2x_marl.regression.model import PAPER_MODEL, load_model
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+#: the scripted policies, by name (what a baseline file's ``policy:`` may name)
+SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
+#: the scripted policies that read a two-distance model
+MODELLED = ("gbmu", "greedy", "planner", "sensing")
+#: the prefix of a PPO model file (``ppo:PATH``)
+PPO_PREFIX = "ppo:"
+
+
+def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delta: float = 100.0) -> Policy:
+    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH``.
+
+    Args:
+        spec: the policy's name (:data:`SCRIPTED`) or ``ppo:PATH``.
+        env: the env it acts in (its layout, step size and, for oracle, optimum and the planners, its state).
+        model_path: the two-distance model of gbmu, greedy and planner
+            (:func:`~cv2x_marl.regression.model.load_model`: ``paper-table2``, a fit folder or a model file).
+        delta: step size per env step (gbmu, greedy, oracle).
+    """
+    if spec == "static":
+        return StaticPolicy()
+    if spec == "random":
+        return RandomPolicy()
+    if spec in ("gbmu", "greedy"):
+        model = load_model(Path(model_path))
+        return GbmuPolicy(model, env.layout, env.max_step_m, delta=delta, fairness=spec == "gbmu")
+    if spec == "oracle":
+        return OraclePolicy(env, delta=delta)
+    if spec == "optimum":
+        return OptimumPolicy(env)
+    if spec in ("planner", "sensing"):
+        estimator = "model" if spec == "planner" else "sensing"
+        return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)
+    if spec.startswith(PPO_PREFIX):
+        return PpoPolicy(Path(spec[len(PPO_PREFIX) :]), env)
+    raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")
