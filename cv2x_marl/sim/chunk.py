@@ -275,16 +275,7 @@ class ChunkRunner:
             self.sci_rng if self.sci_rng is not None else self.link_rng,
         )
         if acc is not None:
-            acc.add_counts(
-                int(active.sum()),
-                out.bin_n,
-                out.bin_decoded,
-                out.bin_expected,
-                out.bin_causes,
-                out.node_n,
-                out.node_decoded,
-                out.node_expected,
-            )
+            acc.add_counts(int(active.sum()), out)
         return out.tx, out.rx, out.p, out.cause
 
     def inband_leakage(self, total: NDArray[Any]) -> FloatArray:

@@ -26,6 +26,11 @@ Sensing records the PSSCH-RSRP of every SCI a receiver decodes (TS 36.213 14.1.1
 decodes (``sps.sci_decoding``): ``always``, every one not lost to half duplex or below the
 sensitivity; ``sinr``, a draw per link against the PSCCH BLER at the link's SINR
 (:class:`cv2x_marl.sim.link.PscchCurve`), from a stream of its own (:func:`sci_stream`).
+
+The :class:`Simulator` holds the pipeline and drives the parts that live in modules of their own: the
+SPS state and procedures (:class:`cv2x_marl.sim.sps.SpsScheduler`), a period's chunks, numpy or compiled
+(:class:`cv2x_marl.sim.chunk.ChunkRunner`), the pairs in range and their Verlet list
+(:class:`cv2x_marl.sim.geometry.PairList`) and the snapshot types (:mod:`cv2x_marl.sim.snapshot`).
 """
 
 from __future__ import annotations

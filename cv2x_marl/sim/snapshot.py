@@ -121,9 +121,9 @@ class _LazyPairMatrix:
 class LazySnapshot(Snapshot):
     """A :class:`Snapshot` whose ``[N, N]`` ``los`` and ``shadowing_db`` are built when first read.
 
-    With the sparse pair state (:func:`~cv2x_marl.sim.memory.uses_sparse_state`) :meth:`Simulator.reset`
-    returns one: until read it holds the pair arrays only (25 bytes per pair in range); the values,
-    once read, are those an eager snapshot has.
+    With the sparse pair state (:func:`~cv2x_marl.sim.memory.uses_sparse_state`)
+    :meth:`cv2x_marl.sim.simulator.Simulator.reset` returns one: until read it holds the pair arrays only
+    (25 bytes per pair in range); the values, once read, are those an eager snapshot has.
     """
 
     los = _LazyPairMatrix()

@@ -17,6 +17,11 @@ The 3 dB loop has a closed form: with ``v_q`` the q-th smallest RSRP of the cand
 The reselection counter (TS 36.321 5.14.1.1) is drawn uniformly in ``[5, 15]`` for RRI >= 100 ms
 and ``[5 * 100 / RRI, 15 * 100 / RRI]`` for shorter RRIs; it falls by one per transmission and,
 when it expires, the UE keeps its resource with probability ``keep_probability``.
+
+:class:`SpsScheduler` holds every vehicle's SPS state (resources, counters, releases, the sensing
+window) and runs the procedures on it (selection with sensing, counters and reselections at the
+period end or at each packet arrival, releases, an open population's entries); the simulator drives
+it once per chunk and period (:class:`cv2x_marl.sim.simulator.Simulator`).
 """
 
 from __future__ import annotations
