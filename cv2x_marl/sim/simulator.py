@@ -158,8 +158,6 @@ class Simulator:
         """Place the vehicles, draw initial resources, run the warm-up; return the snapshot."""
         cfg = self.config
         self.rng = RngStreams.from_seed(seed)
-        #: the SCI decoding draws (sps.sci_decoding=sinr) come from a stream of their own
-        self.chunks.reset(self.rng.link, sci_stream(seed) if self.pscch_curve is not None else None)
         self._ready = False  # until this reset completes (starting SUMO can fail)
         self.close()
         self.pair_list.clear()  # the Verlet list belongs to the previous episode's positions
@@ -181,6 +179,8 @@ class Simulator:
             self.n, cfg.channel.shadowing_decorrelation_m, self.rng.shadowing, cfg.channel.shadowing_correlation
         )
         self.scheduler.reset(self.rng.sps, self.rng.traffic, self.present)
+        #: the SCI decoding draws (sps.sci_decoding=sinr) come from a stream of their own
+        self.chunks.reset(self.rng.link, sci_stream(seed) if self.pscch_curve is not None else None)
         self.n_entries = 0
         self.n_departures = 0
         #: [K] slots whose vehicle left at the last period end (population=open), for the metrics
