@@ -87,6 +87,27 @@ class ChunkRunner:
         #: [n_sub, n_sub] in-band leakage M[victim, interferer] (link.inband_emission_model=3gpp; None otherwise)
         self.leakage = leakage
         self.sparse_state = sparse_state
+        # the compiled chunk's constant inputs, built once
+        sens = config.radio.sensitivity_dbm
+        flat = config.link.inband_emission_db
+        self.link_model = kernels.LinkModel(
+            self.n_res,
+            self.n_sub,
+            noise_mw,
+            kernels.MODEL_THRESHOLD if config.link.model == "threshold" else curve.kernel_model,
+            curve.sinr_db,
+            curve.per,
+            float(config.link.sinr_threshold_db),
+            -np.inf if sens is None else float(sens),
+            float(db_to_linear(flat)) if flat is not None else 0.0,
+            leakage if leakage is not None else np.empty((0, 0)),
+        )
+        sci_lin, sci_bler = np.empty(0), np.empty(0)  # sps.sci_decoding=always: every SCI
+        if pscch_curve is not None and self.pscch_lin is not None:
+            sci_lin, sci_bler = self.pscch_lin, pscch_curve.bler
+        self.sci_model = kernels.SciModel(
+            sci_lin, sci_bler, float(config.sps.sci_sinr_offset_db), bool(config.sps.sci_gates_pssch)
+        )
 
     def reset(self, link_rng: np.random.Generator, sci_rng: np.random.Generator | None) -> None:
         """The episode's ``link`` stream and SCI stream (``sps.sci_decoding=sinr``; None otherwise), and zeroed
@@ -237,29 +258,12 @@ class ChunkRunner:
         from the same streams, the same sums in the same order, the dB values and the PER and PSCCH
         interpolation with numpy's formulas, taken only where a comparison needs them; tested equal to the
         numpy path (``tests/sim/test_scale.py``, ``tests/sim/test_sci_decoding.py``)."""
-        cfg = self.config
-        sens = cfg.radio.sensitivity_dbm
-        pscch = self.pscch_curve
-        sci_lin, sci_bler = np.empty(0), np.empty(0)  # sps.sci_decoding=always: every SCI
-        if pscch is not None and self.pscch_lin is not None:
-            sci_lin, sci_bler = self.pscch_lin, pscch.bler
         subset, links = self._chunk_links(geo, active)
         out = kernels.period_chunk(
             kernels.ChunkLinks(geo.rx, geo.tx, geo.distance_m, geo.rx_mw, subset, links),
             kernels.ChunkVehicles(active, sched.resource, sched.slot, sched.releasing),
-            kernels.LinkModel(
-                self.n_res,
-                self.n_sub,
-                self.noise_mw,
-                kernels.MODEL_THRESHOLD if cfg.link.model == "threshold" else self.curve.kernel_model,
-                self.curve.sinr_db,
-                self.curve.per,
-                float(cfg.link.sinr_threshold_db),
-                -np.inf if sens is None else float(sens),
-                float(db_to_linear(cfg.link.inband_emission_db)) if cfg.link.inband_emission_db is not None else 0.0,
-                self.leakage if self.leakage is not None else np.empty((0, 0)),
-            ),
-            kernels.SciModel(sci_lin, sci_bler, float(cfg.sps.sci_sinr_offset_db), bool(cfg.sps.sci_gates_pssch)),
+            self.link_model,
+            self.sci_model,
             kernels.ChunkBuffers(
                 sched.period_rssi_mw,
                 sched.period_sci_mw,
