@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from cv2x_marl.config import ScenarioConfig
 from cv2x_marl.sim import channel, inband, kernels, link
 from cv2x_marl.sim.road import Road
-from cv2x_marl.sim.simulator import Snapshot
+from cv2x_marl.sim.snapshot import Snapshot
 from cv2x_marl.units import db_to_linear, noise_power_dbm
 
 FloatArray = NDArray[np.float64]

@@ -5,7 +5,7 @@ The simulator keeps dense ``N x N`` state (shadowing, its pair index; with ``lin
 :func:`uses_sparse_state`), per-period arrays over the vehicle pairs in range, and, with
 ``metrics.record_links``, a links table that grows by one row per (transmission, receiver).
 :func:`estimate_memory_bytes` adds these up from the configuration alone (no array is allocated),
-with per-element byte counts read off :mod:`cv2x_marl.sim.simulator`,
+with per-element byte counts read off :mod:`cv2x_marl.sim.simulator` and the modules it drives,
 :mod:`cv2x_marl.sim.channel` and :mod:`cv2x_marl.sim.sps` and checked against tracemalloc peaks of
 real runs (``tests/sim/test_memory.py``). :func:`check_memory` compares the estimate with the
 memory available and raises :class:`~cv2x_marl.config.ConfigError` naming the keys to change.
@@ -56,15 +56,15 @@ GB = 1e9
 LINK_ROW_BYTES = 4 + 4 + 8 + 2 + 8 + 2 + 8 + 8 + 8 + 8 + 1 + 1 + 1 + 8
 
 # Bytes per element of the arrays the simulator allocates (see the module docstring for P, L, K).
-_PAIR_INDEX_PER_PAIR = 16  # Simulator._all_pairs: two int64 [P_all], always built
+_PAIR_INDEX_PER_PAIR = 16  # PairList.all_pairs (sim/geometry.py): two int64 [P_all], always built
 _PAIR_INDEX_BUILD_PER_PAIR = 32  # ... while built: np.triu_indices output and its astype copies
 _SHADOWING_PER_CELL = 16  # Shadowing._z and ._last_odo: float64 [N, N] each
 _SHADOWING_INIT_PER_CELL = 25  # Shadowing.__init__: draw w, triu(w) (+ in-place .T sum), triu mask (bool)
 _SNAPSHOT_PER_CELL = 9  # Snapshot.los (bool) and .shadowing_db (float64) [N, N], returned by reset
 _SNAPSHOT_BUILD_PER_PAIR = 170  # snapshot(): path loss and shadowing of the P pairs (measured 150-170)
-_GEOMETRY_PER_PAIR = 81  # _Geometry: rx, tx, distance, power [2P] (8 B); LOS (1 B), mean power, rel. speed [P]
-_PERIOD_PER_LINK = 130  # _chunk: ~15 arrays of 8 B and ~8 of 1 B over the period's L links (measured 124)
-# _chunk_compiled (no links table, no Rayleigh; kernels.period_chunk): no array over the links but its outputs
+_GEOMETRY_PER_PAIR = 81  # geometry.Geometry: rx, tx, distance, power [2P] (8 B); LOS (1 B), mean power, rel. speed [P]
+_PERIOD_PER_LINK = 130  # ChunkRunner.run (numpy): ~15 arrays of 8 B, ~8 of 1 B over the period's L links (measured 124)
+# ChunkRunner._run_compiled (no links table, no Rayleigh; kernels.period_chunk): no array over the links but its outputs
 # (last_links); the scratch for the power per receiver and resource [N * R] (float64), kept between chunks
 _COMPILED_PERIOD_PER_CELL = 8
 _COMPILED_PERIOD_PER_LINK = 9  # kernels.period_chunk while it runs: each link's uniform, then P (8 B), cause (1 B)
@@ -85,8 +85,8 @@ SPARSE_STATE_MIN_VEHICLES = 2500
 # Sparse pair state, bytes per unordered pair in range P:
 _SPARSE_SHADOWING_PER_PAIR = 24  # SparseShadowing: keys (int64), Z and last read (float64)
 _SPARSE_SHADOWING_UPDATE_PER_PAIR = 41  # ... while updated: keys, reference, positions, last Z, new Z, order check
-_LAZY_SNAPSHOT_PER_PAIR = 25  # _LazySnapshot until read: i, j (int64), LOS (bool), mean power (float64)
-_PAIR_LIST_PER_PAIR = 8.4  # Simulator._pair_list: the Verlet list's i, j (int32) at the cut-off + 5 %
+_LAZY_SNAPSHOT_PER_PAIR = 25  # snapshot.LazySnapshot until read: i, j (int64), LOS (bool), mean power (float64)
+_PAIR_LIST_PER_PAIR = 8.4  # PairList.built (sim/geometry.py): the Verlet list's i, j (int32) at the cut-off + 5 %
 
 #: below this estimate, check_memory does not read /proc/meminfo (the env builds small simulators often)
 QUICK_PASS_BYTES = 256 * 2**20
@@ -192,7 +192,7 @@ def _estimate(
     rows = links * math.ceil(n_sub / rri) if record else 0.0
 
     sparse = cfg.link.max_range_m is not None and n_arr >= SPARSE_STATE_MIN_VEHICLES  # uses_sparse_state for n
-    all_pairs = cfg.link.max_range_m is None  # Simulator._all_pairs only without a cut-off
+    all_pairs = cfg.link.max_range_m is None  # PairList.all_pairs only without a cut-off
     pair_index = _PAIR_INDEX_PER_PAIR * p_all if all_pairs else 0.0
     pair_index_build = _PAIR_INDEX_BUILD_PER_PAIR * p_all if all_pairs else 0.0
     if sparse:
@@ -206,7 +206,7 @@ def _estimate(
         snapshot = _SNAPSHOT_PER_CELL * cells
         snapshot_build = _SNAPSHOT_BUILD_PER_PAIR * p
     periods = max(1, sps.sensing_window_ms // rri)
-    compiled = not record and not rayleigh  # as Simulator._chunk: the compiled chunk
+    compiled = not record and not rayleigh  # as Simulator._chunk: the compiled chunk (ChunkRunner._run_compiled)
     # in-band emission: flat, the per-(receiver, subframe) sums [N, RRI] (the compiled chunk's scratch, or
     # the numpy chunk's); 3gpp, the numpy chunk's leakage per (receiver, resource) (the kernel sums it per link)
     inband = 8 * n_arr * n_res if cfg.link.inband_emission_model == "3gpp" and not compiled else 0
@@ -241,7 +241,7 @@ def _estimate(
     pair_list = _PAIR_LIST_PER_PAIR * p if cfg.link.max_range_m is not None else 0.0
     state = pair_index + pair_list + shadowing + sensing + _VEHICLE_BYTES * n_arr + last
     phases = (
-        pair_index_build,  # Simulator.__init__
+        pair_index_build,  # Simulator.__init__ (its PairList)
         pair_index + (shadowing if sparse else _SHADOWING_INIT_PER_CELL * cells),  # reset: Shadowing.__init__
         state + geometry + snapshot + snapshot_build,  # reset: snapshot()
         state + snapshot + geometry + shadowing_peak - shadowing,  # period geometry: shadowing update

@@ -12,10 +12,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # the annotation only: the metrics need no numba
+    from cv2x_marl.sim.kernels.period import ChunkResult
 
 CAUSES: tuple[str, ...] = ("ok", "half_duplex", "sensitivity", "propagation", "collision")
 CAUSE_CODE = {name: i for i, name in enumerate(CAUSES)}
@@ -136,24 +139,14 @@ class PrrAccumulator:
             return float("nan")
         return float(self.bin_decoded[j] / self.bin_n[j])
 
-    def add_counts(
-        self,
-        n_transmissions: int,
-        bin_n: NDArray[np.int64],
-        bin_decoded: NDArray[np.int64],
-        bin_expected: NDArray[np.float64],
-        bin_causes: NDArray[np.int64],
-        node_n: NDArray[np.int64],
-        node_decoded: NDArray[np.int64],
-        node_expected: NDArray[np.float64],
-    ) -> None:
-        """Add one batch already counted (:func:`cv2x_marl.sim.kernels.period_chunk`): the
-        per-bin ``[n_bins]`` and per-node ``[N]`` sums of :meth:`add`, ``bin_causes`` cause-major."""
+    def add_counts(self, n_transmissions: int, counts: ChunkResult) -> None:
+        """Add one batch already counted (:func:`cv2x_marl.sim.kernels.period_chunk`'s result): its per-bin
+        ``[n_bins]`` and per-node ``[N]`` sums of :meth:`add`, ``bin_causes`` cause-major."""
         self.n_transmissions += n_transmissions
-        self.bin_n += bin_n
-        self.bin_decoded += bin_decoded
-        self.bin_expected += bin_expected
-        self.bin_causes += bin_causes.reshape(len(CAUSES), self.n_bins)
-        self.node_n += node_n
-        self.node_decoded += node_decoded
-        self.node_expected += node_expected
+        self.bin_n += counts.bin_n
+        self.bin_decoded += counts.bin_decoded
+        self.bin_expected += counts.bin_expected
+        self.bin_causes += counts.bin_causes.reshape(len(CAUSES), self.n_bins)
+        self.node_n += counts.node_n
+        self.node_decoded += counts.node_decoded
+        self.node_expected += counts.node_expected

@@ -73,12 +73,12 @@ def compiled_and_numpy() -> Callable[..., tuple[Any, Any, Any, Any]]:
             np.testing.assert_array_equal(getattr(ma, key), getattr(mb, key), err_msg=key)
         for key, count in (("bin_expected", "bin_n"), ("node_expected", "node_n")):
             assert_sums_close(getattr(ma, key), getattr(mb, key), getattr(ma, count), key)
-        assert np.any(a._period_sci_mw > 0) and np.any(a._period_rssi > 0)
-        np.testing.assert_array_equal(a._period_sci_mw, b._period_sci_mw)
-        np.testing.assert_array_equal(a._period_rssi, b._period_rssi)
-        np.testing.assert_array_equal(a._rssi_ring, b._rssi_ring)
+        assert np.any(a.scheduler.period_sci_mw > 0) and np.any(a.scheduler.period_rssi_mw > 0)
+        np.testing.assert_array_equal(a.scheduler.period_sci_mw, b.scheduler.period_sci_mw)
+        np.testing.assert_array_equal(a.scheduler.period_rssi_mw, b.scheduler.period_rssi_mw)
+        np.testing.assert_array_equal(a.scheduler.rssi_ring, b.scheduler.rssi_ring)
         np.testing.assert_array_equal(a.resource, b.resource)
-        assert not np.any(a._chunk_total) and not np.any(a._chunk_total_slot)  # the scratches left zero
+        assert not np.any(a.chunks.total) and not np.any(a.chunks.total_slot)  # the scratches left zero
         assert a.n_reselections == b.n_reselections
         assert ma.n_transmissions == mb.n_transmissions > 0
         return a, ma, b, mb

@@ -146,7 +146,7 @@ def _scene(extra: list[str] | None = None) -> tuple[Simulator, list]:
     cfg = apply_overrides(preset("paper"), [*SCENE, *(extra or [])])
     sim = Simulator(cfg)
     sim.reset(seed=3, warmup_subframes=0)
-    sim.resource = np.array([s * cfg.sps.n_subchannels + c for s, c in RESOURCES])
+    sim.scheduler.resource = np.array([s * cfg.sps.n_subchannels + c for s, c in RESOURCES])
     sim.set_offsets(POSITIONS_M - mobility.positions_m(sim.road, sim.state))
     snap = sim.snapshot()
     links = sim.run(cfg.traffic.rri_ms).links
@@ -193,7 +193,7 @@ def test_sinr_of_a_hand_built_scene_matches_an_independent_construction() -> Non
     )
     assert flat_sinr - links["sinr_db"][k03] > 1.0
     # sensing: vehicle 3's S-RSSI of slot 3 holds the leakage too (the energy in each subchannel), plus noise
-    rssi = sim._rssi_ring[0, 3].astype(np.float64)  # the period just ended, [resource]
+    rssi = sim.scheduler.rssi_ring[0, 3].astype(np.float64)  # the period just ended, [resource]
     np.testing.assert_allclose(rssi[3 * 2 + 0], p_mw[0, 3] + w * (p_mw[1, 3] + p_mw[2, 3]) + noise_mw, rtol=1e-6)
     np.testing.assert_allclose(rssi[3 * 2 + 1], p_mw[1, 3] + p_mw[2, 3] + w * p_mw[0, 3] + noise_mw, rtol=1e-6)
     assert np.isnan(rssi[7 * 2 : 7 * 2 + 2]).all()  # its own subframe: not monitored
@@ -206,7 +206,7 @@ def test_the_simulator_weights_leakage_by_victim_row_on_an_asymmetric_pool() -> 
     sim = Simulator(cfg)
     sim.reset(seed=3, warmup_subframes=0)
     # 0 on subchannel 0 and 1 on subchannel 2 of slot 3; 2 and 3 receive from slot 7 / 9
-    sim.resource = np.array([3 * 5 + 0, 3 * 5 + 2, 9 * 5 + 4, 7 * 5 + 0])
+    sim.scheduler.resource = np.array([3 * 5 + 0, 3 * 5 + 2, 9 * 5 + 4, 7 * 5 + 0])
     sim.set_offsets(POSITIONS_M - mobility.positions_m(sim.road, sim.state))
     links = sim.run(cfg.traffic.rri_ms).links
     assert links is not None
@@ -231,7 +231,7 @@ def test_the_simulator_weights_leakage_by_victim_row_on_an_asymmetric_pool() -> 
 
 def test_the_flat_model_leaves_sensing_co_channel() -> None:
     sim, (_snap, links) = _scene(["link.inband_emission_model=flat", "link.inband_emission_db=-20"])
-    rssi = sim._rssi_ring[0, 3].astype(np.float64)
+    rssi = sim.scheduler.rssi_ring[0, 3].astype(np.float64)
     k = np.flatnonzero((links["tx"] == 0) & (links["rx"] == 3))[0]
     noise_mw = 10.0 ** ((sim.config.radio.noise_dbm + sim.config.radio.noise_figure_db) / 10.0)
     np.testing.assert_allclose(rssi[3 * 2 + 0], 10.0 ** (links["rx_power_dbm"][k] / 10.0) + noise_mw, rtol=1e-6)
@@ -340,16 +340,16 @@ def test_compiled_period_with_inband_emission_equals_the_numpy_period(
 
 
 def test_inband_leakage_sums_each_victim_row_by_hand() -> None:
-    """Simulator._inband_leakage (the numpy side of the compiled chunk's sums): leak[v] = sum_i M[v, i] t[i]."""
+    """Simulator.chunks.inband_leakage (the numpy side of the compiled chunk's sums): leak[v] = sum_i M[v, i] t[i]."""
     cfg = apply_overrides(preset("highway-legacy"), ["road.length_m=1000", "link.inband_emission_model=3gpp"])
     sim = Simulator(cfg)
-    assert sim._leakage is not None
+    assert sim.chunks.leakage is not None
     total = np.zeros(sim.n * sim.n_res)
     row = 7 * sim.rri + 31  # receiver 7, subframe 31
     t = np.array([1e-9, 0.0, 3e-10, 0.0, 2e-11])[: sim.n_sub]
     total[row * sim.n_sub : (row + 1) * sim.n_sub] = t
-    leak = sim._inband_leakage(total).reshape(sim.n * sim.rri, sim.n_sub)
-    m = sim._leakage
+    leak = sim.chunks.inband_leakage(total).reshape(sim.n * sim.rri, sim.n_sub)
+    m = sim.chunks.leakage
     for v in range(sim.n_sub):
         assert leak[row, v] == pytest.approx(sum(m[v, i] * t[i] for i in range(sim.n_sub)), rel=1e-15)
     assert leak[row, 0] == pytest.approx(m[0, 2] * 3e-10 + m[0, 4] * 2e-11, rel=1e-15)  # M has a zero diagonal

@@ -22,7 +22,7 @@ def _sim(*extra: str) -> Simulator:
 def test_counter_state_after_five_periods_by_hand() -> None:
     sim = _sim()
     sim.reset(7, warmup_subframes=0)
-    c0 = sim.counter.copy()  # drawn uniformly in [5, 15] at RRI 100
+    c0 = sim.scheduler.counter.copy()  # drawn uniformly in [5, 15] at RRI 100
     state0 = sim.sps_state()
     assert state0["share_initial_resource"] == 1.0 and state0["share_never_expired"] == 1.0
     assert state0["counter_histogram"] == {str(v): int(np.sum(c0 == v)) for v in np.unique(c0)}
@@ -35,8 +35,8 @@ def test_counter_state_after_five_periods_by_hand() -> None:
     assert state["subframe"] == 5 * sim.rri
     assert state["share_initial_resource"] == pytest.approx(1.0 - fives.mean())
     assert state["share_never_expired"] == pytest.approx(1.0 - fives.mean())
-    np.testing.assert_array_equal(sim.counter[~fives], c0[~fives] - 5)
-    np.testing.assert_array_equal(sim.initial_resource, ~fives)
+    np.testing.assert_array_equal(sim.scheduler.counter[~fives], c0[~fives] - 5)
+    np.testing.assert_array_equal(sim.scheduler.initial_resource, ~fives)
 
 
 def test_summary_reports_the_state_at_measurement_start() -> None:
@@ -51,21 +51,21 @@ def test_summary_reports_the_state_at_measurement_start() -> None:
 def test_until_reselected_ends_after_the_longest_first_counter() -> None:
     sim = _sim()
     sim.reset(7, warmup_subframes=0)
-    longest = int(sim.counter.max())
+    longest = int(sim.scheduler.counter.max())
     warm = _sim("sim.warmup_mode=until_reselected")
     warm.reset(7, warmup_subframes=0)  # same seed: same initial counters; keep_probability 0
     assert warm.subframe == longest * warm.rri
     state = warm.sps_state()
     assert state["share_initial_resource"] == 0.0 and state["share_never_expired"] == 0.0
-    assert not warm.initial_resource.any()
+    assert not warm.scheduler.initial_resource.any()
 
 
 def test_until_reselected_with_keeps_and_a_longer_fixed_warmup() -> None:
     sim = _sim("sim.warmup_mode=until_reselected", "sps.keep_probability=0.5", "sim.warmup_subframes=2050")
     sim.reset(2)
     assert sim.subframe >= 2050 and sim.subframe % sim.rri == 0
-    assert not sim.initial_resource.any()
-    assert sim.n_keeps > 0  # some expiries kept the resource, so the warm-up had to go on past them
+    assert not sim.scheduler.initial_resource.any()
+    assert sim.scheduler.n_keeps > 0  # some expiries kept the resource, so the warm-up had to go on past them
 
 
 def test_fixed_is_the_default_and_unchanged() -> None:

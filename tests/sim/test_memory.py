@@ -34,7 +34,7 @@ def test_dense_parts_by_hand_and_growth_as_n_squared() -> None:
     # Shadowing.__init__: draw w, triu(w, 1) (its .T sum reuses it) and triu(w, 1) again, float64 N x N,
     # and the bool triu mask; then _z and _last_odo (16 N^2) stay
     assert est["shadowing"] == 3 * 8 * n * n + n * n == 25_000_000
-    # Simulator._all_pairs: two int64 per unordered pair, and their astype copies while built
+    # Simulator.pair_list.all_pairs: two int64 per unordered pair, and their astype copies while built
     assert est["pair_index"] == 2 * 2 * 8 * (n * (n - 1) // 2) == 15_984_000
     assert est["snapshot"] >= 9 * n * n  # Snapshot.los (bool) + shadowing_db (float64)
     assert est["co_channel"] == est["links_table"] == 0

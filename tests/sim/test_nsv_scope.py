@@ -40,7 +40,7 @@ def test_group_terms_against_brute_force() -> None:
     tx = np.flatnonzero(active).repeat(3)
     rx = rng.integers(0, sim.n, size=tx.size)
     for group in (sim.resource, sim.slot):
-        rep, partner = sim._group_terms(tx, rx, active, group)
+        rep, partner = sim.chunks.group_terms(tx, rx, active, group)
         got = sorted(zip(rep.tolist(), partner.tolist(), strict=True))
         want = sorted(
             (k, c)

@@ -12,6 +12,7 @@ import pytest
 
 from cv2x_marl.config import apply_overrides, preset
 from cv2x_marl.sim import Simulator, kernels
+from cv2x_marl.sim.geometry import PairList
 
 
 @pytest.mark.parametrize("wrap", [True, False])
@@ -46,8 +47,8 @@ def _run_pairs(
             sim.set_offsets(rng.uniform(-2, 2, (sim.n, 2)))
         geo = sim._period_geometry()
         out.append((geo.tx.copy(), geo.rx.copy()))
-        if sim._pair_list is not last:
-            builds, last = builds + 1, sim._pair_list
+        if sim.pair_list.built is not last:
+            builds, last = builds + 1, sim.pair_list.built
         sim.run(sim.rri)
     return out, sim, builds
 
@@ -62,7 +63,7 @@ def test_simulator_pairs_equal_a_sweep_every_period(offsets: bool) -> None:
     )
     skin_pairs, a, builds = _run_pairs(cfg, 15.0, 25, offsets)
     sweep_pairs, b, none = _run_pairs(cfg, 0.0, 25, offsets)
-    assert none == 0 and b._pair_list is None
+    assert none == 0 and b.pair_list.built is None
     assert 2 <= builds <= 20  # rebuilt on the way, but not every period
     for (tx_a, rx_a), (tx_b, rx_b) in zip(skin_pairs, sweep_pairs, strict=True):
         np.testing.assert_array_equal(tx_a, tx_b)
@@ -82,8 +83,8 @@ def _list_built(skin_m: float) -> tuple[Simulator, np.ndarray, object]:
     sim.pair_skin_m = skin_m
     sim.reset(1, warmup_subframes=0)
     pos = np.ascontiguousarray(sim._period_geometry().positions_m)
-    assert sim._pair_list is not None
-    return sim, pos, sim._pair_list
+    assert sim.pair_list.built is not None
+    return sim, pos, sim.pair_list.built
 
 
 def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
@@ -91,10 +92,10 @@ def test_rebuild_when_a_vehicle_moved_half_the_skin() -> None:
     offsets = np.zeros((sim.n, 2))
     offsets[4, 0] = 4.9  # 2 x 4.9 < 10: the list stands
     sim._pairs(pos + offsets)
-    assert sim._pair_list is built
+    assert sim.pair_list.built is built
     offsets[4, 0] = 5.1  # 2 x 5.1 > 10: rebuilt
     i, j = sim._pairs(pos + offsets)
-    assert sim._pair_list is not built
+    assert sim.pair_list.built is not built
     ri, rj = kernels.pairs_within_range(pos + offsets, sim.road.periodic_box_m, 200.0)
     np.testing.assert_array_equal(i, ri)
     np.testing.assert_array_equal(j, rj)
@@ -104,7 +105,7 @@ def test_a_changed_skin_rebuilds_the_list() -> None:
     sim, pos, built = _list_built(1.0)
     sim.pair_skin_m = 10.0  # the 1 m list holds no pair between 201 and 210 m: it must not be reused
     sim._pairs(pos)
-    assert sim._pair_list is not built and sim._pair_list is not None and sim._pair_list[2] == 10.0
+    assert sim.pair_list.built is not built and sim.pair_list.built is not None and sim.pair_list.built[2] == 10.0
 
 
 def _vehicles_at(t: float) -> list[tuple[str, float]]:
@@ -136,13 +137,13 @@ def test_open_population_pairs_equal_a_sweep(
         ],
     )
     slot_sets: set[tuple[int, ...]] = set()
-    real_pairs_of = Simulator._pairs_of
+    real_pairs_of = PairList._pairs_of
 
-    def spy(sim: Simulator, pos: np.ndarray, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        slot_sets.add(tuple(range(sim.n)) if idx is None else tuple(idx.tolist()))
-        return real_pairs_of(sim, pos, idx)
+    def spy(pairs: PairList, pos: np.ndarray, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        slot_sets.add(tuple(range(pairs.n)) if idx is None else tuple(idx.tolist()))
+        return real_pairs_of(pairs, pos, idx)
 
-    monkeypatch.setattr(Simulator, "_pairs_of", spy)
+    monkeypatch.setattr(PairList, "_pairs_of", spy)
     skin_pairs, a, builds = _run_pairs(cfg, 4.0, 30)
     sweep_pairs, _, _ = _run_pairs(cfg, 0.0, 30)
     # the present slots changed twice (f entered slot 4, e left slot 3), each change rebuilding the list

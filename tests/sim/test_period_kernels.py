@@ -15,6 +15,7 @@ import pytest
 
 from cv2x_marl.config import PER_CURVES, apply_overrides, preset
 from cv2x_marl.sim import Simulator, kernels
+from cv2x_marl.sim.chunk import ChunkRunner
 from cv2x_marl.sim.link import load_per_curve, load_pscch_curve
 
 # every test here is rerun by `make test-portable` (numpy's baseline SIMD paths, numba's generic target).
@@ -262,7 +263,7 @@ def test_radix_sort_equals_numpy_sort(size: int, bound: int) -> None:
 
 def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks(tolerances: Any) -> None:
     """Runs cut every 7 subframes: each chunk has a few transmitters, so the compiled chunk visits only
-    their links (Simulator._chunk_links); the same results as the numpy chunks (P and its sums to the
+    their links (Simulator.chunks._chunk_links); the same results as the numpy chunks (P and its sums to the
     tolerance of tests/sim/conftest.py's compiled_and_numpy, outcomes, resources and S-RSSI exact)."""
     cfg = apply_overrides(preset("highway"), ["road.length_m=2000", "metrics.record_links=false"])
     out = []
@@ -272,7 +273,7 @@ def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks(tolerances
         sim.compiled_min_links = 0  # the compiled chunk at any size
         sim.reset(5, warmup_subframes=100)
         geo = sim._period_geometry()
-        subset, links = sim._chunk_links(geo, sim.slot < 7)
+        subset, links = sim.chunks._chunk_links(geo, sim.slot < 7)
         assert subset and links.shape[0] > 0  # the subset path is the one taken
         sums = [sim.run(7).metrics for _ in range(60)]
         out.append((sim, sums))
@@ -286,7 +287,7 @@ def test_compiled_chunks_of_a_few_transmitters_equal_the_numpy_chunks(tolerances
     for x, y in ((tx_a, tx_b), (rx_a, rx_b), (cause_a, cause_b)):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_allclose(p_a, p_b, rtol=0.0, atol=tolerances.p_atol)
-    np.testing.assert_array_equal(a._rssi_ring, b._rssi_ring)
+    np.testing.assert_array_equal(a.scheduler.rssi_ring, b.scheduler.rssi_ring)
     np.testing.assert_array_equal(a.resource, b.resource)
     assert a.n_reselections == b.n_reselections > 0
 
@@ -352,13 +353,13 @@ def test_small_periods_run_the_numpy_chunk_and_large_ones_the_compiled_one(monke
     """Below Simulator.compiled_min_links links a period runs the numpy chunk (the same results, less
     dispatch cost at the paper's 420 links); at or above it the compiled one."""
     calls: list[int] = []
-    orig = Simulator._chunk_compiled
+    orig = ChunkRunner._run_compiled
 
-    def spy(self: Simulator, geo: object, active: object, acc: object) -> None:
+    def spy(self: ChunkRunner, geo: object, sched: object, active: object, acc: object) -> object:
         calls.append(1)
-        orig(self, geo, active, acc)  # type: ignore[arg-type]
+        return orig(self, geo, sched, active, acc)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(Simulator, "_chunk_compiled", spy)
+    monkeypatch.setattr(ChunkRunner, "_run_compiled", spy)
     small = Simulator(apply_overrides(preset("paper"), ["metrics.record_links=false"]))  # 21 vehicles: 420 links
     small.reset(1, warmup_subframes=0)
     small.run(200)
@@ -427,9 +428,11 @@ def test_chunk_tile_subframes() -> None:
     assert kernels.chunk_tile_subframes(21, 5, 100) == kernels.CHUNK_TILE_BYTES // (8 * 21 * 5)
 
 
-def _chunk_args(rng: np.random.Generator, n: int, n_sub: int, rri: int, variant: str) -> list[Any]:
+def _chunk_args(rng: np.random.Generator, n: int, n_sub: int, rri: int, variant: str) -> dict[str, Any]:
     """Random inputs of kernels.period_chunk: ``n`` vehicles, all ordered pairs as links (pairs i < j, then
-    doubled, as the simulator's), half the vehicles active, in-band ``variant`` (none, flat, 3gpp + SCI)."""
+    doubled, as the simulator's), half the vehicles active, in-band ``variant`` (none, flat, 3gpp + SCI); the
+    named tuples' fields as lists (``pairs``, ``vehicles``, ``model``, ``sci``, ``buffers`` less the tile size,
+    ``bins``) and the two streams."""
     i, j = np.triu_indices(n, 1)
     rx, tx = np.concatenate([i, j]).astype(np.int64), np.concatenate([j, i]).astype(np.int64)
     dist = np.concatenate([np.abs(i - j) * 37.0] * 2)
@@ -447,13 +450,19 @@ def _chunk_args(rng: np.random.Generator, n: int, n_sub: int, rri: int, variant:
         leakage = rng.random((n_sub, n_sub)) * 1e-3
     if variant == "flat":
         flat = 1e-3
-    return [
-        rx, tx, dist, rx_mw, active, resource, slot, n_res, 10.0**-10.2, np.random.default_rng(1),
-        kernels.MODEL_PER_TABLE, per_db, per, 3.0, -95.0 if variant == "3gpp" else -np.inf,
-        rng.random(n) < 0.2, rng.random(n * n_res) * (rng.random(n * n_res) < 0.3), np.zeros(n * n_res),
-        100.0, 20, 5, False, np.empty(0, dtype=np.int64), np.zeros(n * n_res), np.random.default_rng(2),
-        sci_lin, sci_bler, 1.5, variant == "3gpp", n_sub, flat, np.zeros(n * rri), leakage,
-    ]  # fmt: skip
+    releasing = rng.random(n) < 0.2
+    period_rssi = rng.random(n * n_res) * (rng.random(n * n_res) < 0.3)
+    sensitivity = -95.0 if variant == "3gpp" else -np.inf
+    return {
+        "pairs": [rx, tx, dist, rx_mw, False, np.empty(0, dtype=np.int64)],
+        "vehicles": [active, resource, slot, releasing],
+        "model": [n_res, n_sub, 10.0**-10.2, kernels.MODEL_PER_TABLE, per_db, per, 3.0, sensitivity, flat, leakage],
+        "sci": [sci_lin, sci_bler, 1.5, variant == "3gpp"],
+        "buffers": [period_rssi, np.zeros(n * n_res), np.zeros(n * n_res), np.zeros(n * rri)],
+        "bins": [100.0, 20, 5],
+        "link_rng": np.random.default_rng(1),
+        "sci_rng": np.random.default_rng(2),
+    }
 
 
 @pytest.mark.parametrize("variant", ["none", "flat", "3gpp"])
@@ -467,15 +476,26 @@ def test_period_chunk_is_the_same_for_any_tile_size(variant: str, subset: bool) 
     ref = None
     for tile in (1, 3, 7, rri):
         args = _chunk_args(np.random.default_rng(5), n, n_sub, rri, variant)
+        pairs, vehicles, buffers = args["pairs"], args["vehicles"], args["buffers"]
         if subset:
-            senders = np.flatnonzero(args[4] & (args[6] < 9))
-            args[4] = np.isin(np.arange(n), senders)
-            start, index = kernels.links_by_transmitter(args[1], n)
-            args[21], args[22] = True, kernels.active_links(start, index, senders)
-        out = kernels.period_chunk(*args, tile)
-        assert not np.any(args[23]) and not np.any(args[31])
-        got = (*out, args[16], args[17], args[9].random(), args[24].random())
-        assert out[0].shape[0] > 100 and np.any(args[17] > 0)
+            senders = np.flatnonzero(vehicles[0] & (vehicles[2] < 9))
+            vehicles[0] = np.isin(np.arange(n), senders)
+            start, index = kernels.links_by_transmitter(pairs[1], n)
+            pairs[4], pairs[5] = True, kernels.active_links(start, index, senders)
+        out = kernels.period_chunk(
+            kernels.ChunkLinks(*pairs),
+            kernels.ChunkVehicles(*vehicles),
+            kernels.LinkModel(*args["model"]),
+            kernels.SciModel(*args["sci"]),
+            kernels.ChunkBuffers(*buffers, tile),
+            kernels.DistanceBins(*args["bins"]),
+            args["link_rng"],
+            args["sci_rng"],
+        )
+        assert isinstance(out, kernels.ChunkResult)
+        assert not np.any(buffers[2]) and not np.any(buffers[3])
+        got = (*out, buffers[0], buffers[1], args["link_rng"].random(), args["sci_rng"].random())
+        assert out.tx.shape[0] > 100 and np.any(buffers[1] > 0)
         if ref is None:
             ref = got
             continue

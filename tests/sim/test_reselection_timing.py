@@ -77,22 +77,22 @@ def _capture_at_arrival(sim: Simulator) -> dict:
     the period ends (filled in by the next run)."""
     n, r = sim.n, sim.n_res
     state: dict = {}
-    arrivals = sim._arrivals
+    arrivals = sim.scheduler.arrivals
 
-    def spy(lo: int, hi: int) -> None:
+    def spy(lo: int, hi: int, subframe: int) -> None:
         if hi - 1 == ARRIVAL:
             state.update(
                 cur_rsrp=sim.period_rsrp_dbm.reshape(n, r).copy(),
-                prev_rsrp=sim._sci_rsrp_dbm(sim._prev_sci_mw).reshape(n, r).copy(),
-                cur_rssi=sim._period_rssi.reshape(n, r).copy(),
-                ring=sim._rssi_ring.copy(),
-                oldest=(sim.subframe // sim.rri) % sim._rssi_ring.shape[0],
+                prev_rsrp=sim.scheduler.sci_rsrp_dbm(sim.scheduler.prev_sci_mw).reshape(n, r).copy(),
+                cur_rssi=sim.scheduler.period_rssi_mw.reshape(n, r).copy(),
+                ring=sim.scheduler.rssi_ring.copy(),
+                oldest=(sim.subframe // sim.rri) % sim.scheduler.rssi_ring.shape[0],
                 resource=sim.resource.copy(),
                 noise=sim.noise_mw,
             )
-        arrivals(lo, hi)
+        arrivals(lo, hi, subframe)
 
-    sim._arrivals = spy  # type: ignore[method-assign]
+    sim.scheduler.arrivals = spy  # type: ignore[method-assign]
     return state
 
 
@@ -100,39 +100,40 @@ def test_a_ue_selects_at_its_own_arrival_on_the_1000_ms_before_it() -> None:
     sim = _prepared()
     cfg, n, r = sim.config, sim.n, sim.n_res
     assert sim.subframe % sim.rri == 0
-    sim.counter[:] = 50  # nobody else expires in this period
-    sim.counter[[V, W]] = 0
-    sim.generation_slot[[V, W]] = ARRIVAL
+    sim.scheduler.counter[:] = 50  # nobody else expires in this period
+    sim.scheduler.counter[[V, W]] = 0
+    sim.scheduler.generation_slot[[V, W]] = ARRIVAL
     sim.resource[V], sim.resource[W] = 40 * 2, 60 * 2  # old slots 40 and 60, before the arrival
     busy = np.isin(sim.resource, [R_PREV, R_Y, R_CUR, R_X])
     sim.resource[busy & (np.arange(n) > W)] = 50 * 2 + 1  # nobody else on the four candidates
     # SCIs: V heard one on R_PREV a period ago (slot 95 >= 90: that is the live reservation: excluded) and
     # one on R_Y "this period" (slot 96 is after the arrival: not yet heard, so ignored); W heard one on
     # R_CUR this period (slot 5 < 90: excluded) and one on R_X only a period ago (slot 6 was silent since: free)
-    sim._prev_sci_mw.reshape(n, r)[V, R_PREV] = STRONG_SCI_MW
-    sim._period_sci_mw.reshape(n, r)[V, R_Y] = STRONG_SCI_MW
-    sim._period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
-    sim._prev_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
+    sim.scheduler.prev_sci_mw.reshape(n, r)[V, R_PREV] = STRONG_SCI_MW
+    sim.scheduler.period_sci_mw.reshape(n, r)[V, R_Y] = STRONG_SCI_MW
+    sim.scheduler.period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
+    sim.scheduler.prev_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
     # S-RSSI: the four are the quietest candidates, in this order for each UE
-    sim._rssi_ring[:, V, R_PREV], sim._rssi_ring[:, V, R_Y] = 1e-15, 2e-15
-    sim._rssi_ring[:, W, R_CUR], sim._rssi_ring[:, W, R_X] = 1e-15, 2e-15
+    sim.scheduler.rssi_ring[:, V, R_PREV], sim.scheduler.rssi_ring[:, V, R_Y] = 1e-15, 2e-15
+    sim.scheduler.rssi_ring[:, W, R_CUR], sim.scheduler.rssi_ring[:, W, R_X] = 1e-15, 2e-15
 
     state = _capture_at_arrival(sim)
     start, reselections = sim.subframe, sim.n_reselections
     links = sim.run(2 * sim.rri).links
-    assert links is not None and state and state["oldest"] == (start // sim.rri) % sim._rssi_ring.shape[0]
+    assert links is not None and state and state["oldest"] == (start // sim.rri) % sim.scheduler.rssi_ring.shape[0]
     expected = [_expected_choice(V, state, cfg), _expected_choice(W, state, cfg)]
     assert sim.resource[[V, W]].tolist() == expected == [R_Y, R_X]
     assert sim.n_reselections - reselections == 2
-    assert np.all((sim.counter[[V, W]] >= 5 - 2) & (sim.counter[[V, W]] <= 15 - 2))  # new, then 2 arrivals
+    counter = sim.scheduler.counter
+    assert np.all((counter[[V, W]] >= 5 - 2) & (counter[[V, W]] <= 15 - 2))  # new, then 2 arrivals
     # one transmission per packet: V sends on slot 40 and, after the arrival, on 96 in the same period;
     # W sends on 60, and its new slot 6 comes before the arrival: from the next period on
     sent = {u: sorted((links["subframe"][links["tx"] == u] - start).tolist()) for u in (V, W)}
     assert sorted(set(sent[V])) == [40, 96, 196] and sorted(set(sent[W])) == [60, 106]
     # neither of them monitored its transmissions: the S-RSSI ring of that period is NaN there
-    first = (start // sim.rri) % sim._rssi_ring.shape[0]
-    ring_v = sim._rssi_ring[first, V].reshape(sim.rri, 2)
-    ring_w = sim._rssi_ring[first, W].reshape(sim.rri, 2)
+    first = (start // sim.rri) % sim.scheduler.rssi_ring.shape[0]
+    ring_v = sim.scheduler.rssi_ring[first, V].reshape(sim.rri, 2)
+    ring_w = sim.scheduler.rssi_ring[first, W].reshape(sim.rri, 2)
     assert np.isnan(ring_v[[40, 96]]).all() and not np.isnan(ring_v[[60, 6]]).any()
     assert np.isnan(ring_w[60]).all() and not np.isnan(ring_w[[40, 6, 96]]).any()
 
@@ -144,13 +145,13 @@ def test_the_arrival_slot_one_period_on_is_never_excluded() -> None:
     sim = _prepared(["sps.selection_window_subframes=100"])
     cfg, n, r = sim.config, sim.n, sim.n_res
     r_g, r_next = ARRIVAL * 2 + 0, (ARRIVAL + 1) * 2 + 0  # slot n + RRI, and slot n + 1
-    sim.counter[:] = 50
-    sim.counter[V] = 0
-    sim.generation_slot[V] = ARRIVAL
+    sim.scheduler.counter[:] = 50
+    sim.scheduler.counter[V] = 0
+    sim.scheduler.generation_slot[V] = ARRIVAL
     sim.resource[V] = 40 * 2
     sim.resource[np.isin(sim.resource, [r_g, r_next]) & (np.arange(n) != V)] = 50 * 2 + 1
-    sim._prev_sci_mw.reshape(n, r)[V, r_g] = STRONG_SCI_MW  # heard at n - RRI: reserved n, which is now
-    sim._rssi_ring[:, V, r_g], sim._rssi_ring[:, V, r_next] = 1e-15, 2e-15  # r_g the quietest
+    sim.scheduler.prev_sci_mw.reshape(n, r)[V, r_g] = STRONG_SCI_MW  # heard at n - RRI: reserved n, which is now
+    sim.scheduler.rssi_ring[:, V, r_g], sim.scheduler.rssi_ring[:, V, r_next] = 1e-15, 2e-15  # r_g the quietest
     state = _capture_at_arrival(sim)
     sim.run(sim.rri)
     assert state and sim.resource[V] == _expected_choice(V, state, cfg) == r_g
@@ -161,14 +162,14 @@ def test_the_same_ues_at_the_period_end_select_on_the_last_period_only() -> None
     too (the whole period is the last period's map); the selection window still follows slot 90."""
     sim = _prepared(["sps.reselection_timing=period_end"])
     n, r = sim.n, sim.n_res
-    sim.counter[:] = 50
-    sim.counter[W] = 1  # expires at this period's end
-    sim.generation_slot[W] = ARRIVAL
+    sim.scheduler.counter[:] = 50
+    sim.scheduler.counter[W] = 1  # expires at this period's end
+    sim.scheduler.generation_slot[W] = ARRIVAL
     sim.resource[W] = 60 * 2
     sim.resource[np.isin(sim.resource, [R_CUR, R_X]) & (np.arange(n) != W)] = 50 * 2 + 1
-    sim._period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
-    sim._period_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
-    sim._rssi_ring[:, W, R_CUR], sim._rssi_ring[:, W, R_X] = 1e-15, 2e-15
+    sim.scheduler.period_sci_mw.reshape(n, r)[W, R_CUR] = STRONG_SCI_MW
+    sim.scheduler.period_sci_mw.reshape(n, r)[W, R_X] = STRONG_SCI_MW
+    sim.scheduler.rssi_ring[:, W, R_CUR], sim.scheduler.rssi_ring[:, W, R_X] = 1e-15, 2e-15
     sim.run(sim.rri)
     assert sim.resource[W] not in (R_CUR, R_X) and (sim.resource[W] // 2 - ARRIVAL - 1) % 100 < 20
 
@@ -177,23 +178,23 @@ def test_standard_signalling_releases_at_the_arrival_where_the_counter_reaches_z
     sim = _prepared(["sps.reservation_signalling=standard"])
     n, r = sim.n, sim.n_res
     u, v = 2, 3
-    sim.counter[:] = 50
-    sim.counter[[u, v]] = 1  # their last packet arrives at slot 50 of this period
-    sim.generation_slot[[u, v]] = 50
+    sim.scheduler.counter[:] = 50
+    sim.scheduler.counter[[u, v]] = 1  # their last packet arrives at slot 50 of this period
+    sim.scheduler.generation_slot[[u, v]] = 50
     sim.resource[u], sim.resource[v] = 30 * 2, 70 * 2  # u sends before its arrival, v after it
     sim.resource[np.isin(sim.resource, [60, 140]) & ~np.isin(np.arange(n), [u, v])] = 10 * 2 + 1
-    sim._releasing[:] = False
+    sim.scheduler.releasing[:] = False
     sim.run(sim.rri - 1)  # up to slot 98, before the period end
     rsrp = sim.period_rsrp_dbm.reshape(n, r)
-    assert sim._releasing[[u, v]].all() and np.all(sim.counter[[u, v]] == 0)  # keep_probability 0
+    assert sim.scheduler.releasing[[u, v]].all() and np.all(sim.scheduler.counter[[u, v]] == 0)  # keep_probability 0
     assert np.isfinite(rsrp[:, 60]).any()  # u's packet before the arrival still reserves
     assert np.isneginf(rsrp[:, 140]).all()  # v's last packet (after it) reserves nothing
     sim.run(1 + 31)  # period end, then the next period up to slot 30: u's last packet
     assert np.isneginf(sim.period_rsrp_dbm.reshape(n, r)[:, 60]).all()
     before = sim.n_reselections
     sim.run(20)  # slots 31-50, the arrival at 50: both reselect, with fresh counters
-    assert sim.n_reselections - before == 2 and not sim._releasing[[u, v]].any()
-    assert np.all(sim.counter[[u, v]] >= 4)
+    assert sim.n_reselections - before == 2 and not sim.scheduler.releasing[[u, v]].any()
+    assert np.all(sim.scheduler.counter[[u, v]] >= 4)
 
 
 def test_half_duplex_and_decoding_stay_consistent_after_mid_period_changes() -> None:
@@ -212,7 +213,7 @@ def test_half_duplex_and_decoding_stay_consistent_after_mid_period_changes() -> 
     assert not np.any(links["cause"][~busy] == CAUSE_CODE["half_duplex"])
     # one transmission per packet: a packet arrives at subframe g + k RRI and goes out within the next
     # RRI, so the packet index (t - 1 - g) // RRI of each UE's transmissions steps by exactly one
-    g0 = sim.generation_slot
+    g0 = sim.scheduler.generation_slot
     for i in range(60):
         t = np.array(sorted({s for tx, s in tx_sf if tx == i}))
         k = (t - 1 - int(g0[i])) // sim.rri
@@ -230,7 +231,7 @@ def test_last_links_hold_the_whole_period_when_it_is_cut() -> None:
     sim.reset(seed=4)
     cut = 0
     for _ in range(5):
-        events = sim._next_arrival_event(0, sim.rri) < sim.rri
+        events = sim.scheduler.next_arrival_event(0, sim.rri) < sim.rri
         links = sim.run(sim.rri).links
         assert links is not None and sim.last_links is not None
         tx, rx, p, cause = sim.last_links
@@ -263,7 +264,7 @@ def test_the_default_is_bit_identical_to_the_code_before_the_switch(signalling: 
         result = sim.run(3000)
         assert result.links is not None
         assert result.metrics.summary()["prr_mean"] == 0.6961440814037098
-        assert (sim.n_reselections, sim.n_keeps) == (106, 79)
+        assert (sim.n_reselections, sim.scheduler.n_keeps) == (106, 79)
         assert int(np.sum(sim.resource * np.arange(sim.n))) == 159069
         assert int(result.links["outcome"].sum()) == 73495
 
@@ -288,7 +289,7 @@ def test_per_ue_with_an_open_population(tmp_path: Path, monkeypatch: pytest.Monk
         links = sim.run(3000).links
         assert links is not None and sim.n_entries > 0 and sim.n_departures > 0 and sim.n_reselections > 0
         assert sim.present is not None
-        assert np.all(sim.resource[~sim.present] == -1) and np.all(sim.counter[sim.resource >= 0] >= 0)
+        assert np.all(sim.resource[~sim.present] == -1) and np.all(sim.scheduler.counter[sim.resource >= 0] >= 0)
         tx_sf = set(zip(links["tx"].tolist(), links["subframe"].tolist(), strict=True))
         rx_sf = zip(links["rx"].tolist(), links["subframe"].tolist(), strict=True)
         busy = np.array([(b, s) in tx_sf for b, s in rx_sf])
@@ -317,7 +318,7 @@ def test_a_run_crossing_into_a_period_keeps_the_whole_last_period_in_last_links(
     for seed in range(20):
         a = Simulator(cfg)
         a.reset(seed, warmup_subframes=1000)
-        expiring = bool(np.any(a.counter <= 1))  # a UE's counter runs out in this period: the period is cut
+        expiring = bool(np.any(a.scheduler.counter <= 1))  # a UE's counter runs out in this period: the period is cut
         cuts: list[tuple[int, int]] = []
         orig = a._chunk
         a._chunk = lambda lo, hi, *rest, _o=orig, _c=cuts: (_c.append((lo, hi)), _o(lo, hi, *rest))[1]  # type: ignore[method-assign]

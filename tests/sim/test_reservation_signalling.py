@@ -23,8 +23,8 @@ def _mid_period(mode: str, seed: int = 4) -> Simulator:
 
 def test_the_last_sci_before_reselection_reserves_nothing() -> None:
     std = _mid_period("standard")
-    releasing = np.flatnonzero(std._releasing)
-    assert releasing.size > 0 and np.all(std.counter[releasing] == 1)  # keep_probability 0: all of them
+    releasing = np.flatnonzero(std.scheduler.releasing)
+    assert releasing.size > 0 and np.all(std.scheduler.counter[releasing] == 1)  # keep_probability 0: all of them
     rsrp = std.period_rsrp_dbm.reshape(std.n, std.n_res)
     sent = [i for i in releasing if std.slot[i] < std.rri - 1]
     others = [i for i in range(std.n) if i not in set(releasing) and std.slot[i] < std.rri - 1]
@@ -34,20 +34,21 @@ def test_the_last_sci_before_reselection_reserves_nothing() -> None:
     assert alone and np.all(np.isneginf(rsrp[:, std.resource[alone]]))
     assert np.any(np.isfinite(rsrp[:, std.resource[others]]))
     legacy = _mid_period("always")
-    assert not legacy._releasing.any()
+    assert not legacy.scheduler.releasing.any()
     np.testing.assert_array_equal(legacy.resource, std.resource)  # same start: only the SCIs differ
     assert np.any(np.isfinite(legacy.period_rsrp_dbm.reshape(std.n, std.n_res)[:, std.resource[alone]]))
 
 
 def test_releasing_ues_reselect_at_the_period_end_and_the_rest_keep_their_counters() -> None:
     sim = _mid_period("standard")
-    releasing = sim._releasing.copy()
-    counters = sim.counter.copy()
+    releasing = sim.scheduler.releasing.copy()
+    counters = sim.scheduler.counter.copy()
     sim.run(1)  # the period ends: decrement, reselections, the next period's draw
-    assert sim.n_expiries == int(releasing.sum()) == sim.n_reselections
-    np.testing.assert_array_equal(sim.counter[~releasing], counters[~releasing] - 1)
-    assert np.all(sim.counter[releasing] >= 5)  # fresh counters, 5-15 at RRI 100
-    np.testing.assert_array_equal(sim._releasing, sim.counter == 1)  # keep_probability 0: all of them
+    assert sim.scheduler.n_expiries == int(releasing.sum()) == sim.n_reselections
+    np.testing.assert_array_equal(sim.scheduler.counter[~releasing], counters[~releasing] - 1)
+    assert np.all(sim.scheduler.counter[releasing] >= 5)  # fresh counters, 5-15 at RRI 100
+    # keep_probability 0: all of them
+    np.testing.assert_array_equal(sim.scheduler.releasing, sim.scheduler.counter == 1)
 
 
 def test_unknown_mode_is_refused_by_name() -> None:

@@ -13,7 +13,8 @@ import pytest
 from cv2x_marl.config import apply_overrides, preset
 from cv2x_marl.sim import channel, memory
 from cv2x_marl.sim.memory import ENV_LIMIT, estimate_memory_bytes, uses_sparse_state
-from cv2x_marl.sim.simulator import Simulator, _LazySnapshot
+from cv2x_marl.sim.simulator import Simulator
+from cv2x_marl.sim.snapshot import LazySnapshot
 
 
 @pytest.fixture(autouse=True)
@@ -100,7 +101,7 @@ def test_sparse_state_keeps_the_shadowing_law(monkeypatch: pytest.MonkeyPatch) -
     _small_sparse(monkeypatch)
     sim = Simulator(_cfg([]))  # type: ignore[arg-type]
     snap = sim.reset(2)
-    assert isinstance(snap, _LazySnapshot) and "los" not in vars(snap)
+    assert isinstance(snap, LazySnapshot) and "los" not in vars(snap)
     geo = sim._period_geometry()
     h = geo.rx.shape[0] // 2
     assert sim.shadowing.n_pairs == h == sim.n * (sim.n - 1) // 2  # every pair in range
@@ -116,7 +117,7 @@ def test_lazy_snapshot_equals_the_eager_one(monkeypatch: pytest.MonkeyPatch) -> 
     lazy = sim.snapshot()
     sim.sparse_state = False
     eager = sim.snapshot()
-    assert isinstance(lazy, _LazySnapshot) and not isinstance(eager, _LazySnapshot)
+    assert isinstance(lazy, LazySnapshot) and not isinstance(eager, LazySnapshot)
     np.testing.assert_array_equal(lazy.shadowing_db, eager.shadowing_db)
     np.testing.assert_array_equal(lazy.los, eager.los)
     np.testing.assert_array_equal(lazy.positions_m, eager.positions_m)
@@ -136,9 +137,10 @@ def test_sparse_mean_power_lookup_equals_the_dense_one(monkeypatch: pytest.Monke
     assert 0.0 < res.metrics.summary()["prr_mean"] <= 1.0
     rng = np.random.default_rng(0)
     rx, tx = rng.integers(0, sim.n, 5000), rng.integers(0, sim.n, 5000)
-    sparse = sim._mean_power_lookup(rx, tx)
-    sim.sparse_state = False
-    dense = sim._mean_power_lookup(rx, tx)
+    geo = sim._period_geometry()
+    sparse = sim.chunks._mean_power_lookup(geo, rx, tx)
+    sim.chunks.sparse_state = False
+    dense = sim.chunks._mean_power_lookup(geo, rx, tx)
     np.testing.assert_array_equal(sparse, dense)
     assert np.any(sparse == 0.0) and np.any(sparse > 0.0)  # pairs beyond the cut-off, and within
 
@@ -154,23 +156,25 @@ def test_nothing_n_by_n_with_a_cut_off() -> None:
     n = cfg.n_vehicles
     assert n == 3000 and uses_sparse_state(cfg)
     sim = Simulator(cfg)
-    assert sim._all_pairs is None
+    assert sim.pair_list.all_pairs is None
     snap = sim.reset(0)
-    assert isinstance(snap, _LazySnapshot) and "los" not in vars(snap) and "shadowing_db" not in vars(snap)
+    assert isinstance(snap, LazySnapshot) and "los" not in vars(snap) and "shadowing_db" not in vars(snap)
     geo = sim._period_geometry()
     found = {**_arrays(sim), **{f"shadowing.{k}": v for k, v in _arrays(sim.shadowing).items()}}
+    for part in ("scheduler", "chunks", "pair_list"):
+        found.update({f"{part}.{k}": v for k, v in _arrays(getattr(sim, part)).items()})
     found.update({f"geometry.{k}": v for k, v in _arrays(geo).items()})
     found.update({f"snapshot.{k}": v for k, v in _arrays(snap).items()})
     for name, arr in found.items():
         assert sum(d == n for d in arr.shape) <= 1, (name, arr.shape)
         # N x resources (x periods): linear in N
         if name not in (
-            "_rssi_ring",
-            "_period_rssi",
-            "_period_sci_mw",
-            "_prev_sci_mw",
-            "_chunk_total",
-            "_chunk_total_slot",
+            "scheduler.rssi_ring",
+            "scheduler.period_rssi_mw",
+            "scheduler.period_sci_mw",
+            "scheduler.prev_sci_mw",
+            "chunks.total",
+            "chunks.total_slot",
         ):
             assert arr.size < n * (n - 1) / 8, (name, arr.shape)
     # ~7 % of the pairs in range (2 km of a 30 km ring)
@@ -200,7 +204,7 @@ def test_sparse_estimate_against_measured_peak(monkeypatch: pytest.MonkeyPatch) 
         peak = tracemalloc.get_traced_memory()[1] - base
     finally:
         tracemalloc.stop()
-    assert isinstance(snap, _LazySnapshot)
+    assert isinstance(snap, LazySnapshot)
     monkeypatch.setattr(memory, "SPARSE_STATE_MIN_VEHICLES", 10**9)
     dense_total = estimate_memory_bytes(cfg, 200)["total"]  # the same run with the dense state
     assert peak < dense_total / 1.5, (peak, dense_total)
@@ -273,4 +277,4 @@ def test_pair_state_key_chooses_the_state() -> None:
     with pytest.raises(ConfigError, match=r"link.pair_state.*auto \| dense \| sparse"):
         apply_overrides(hw, ["link.pair_state=compact"])
     sim = Simulator(apply_overrides(hw, ["link.pair_state=sparse", "sim.warmup_subframes=100"]))
-    assert isinstance(sim.reset(0), _LazySnapshot)
+    assert isinstance(sim.reset(0), LazySnapshot)

@@ -85,7 +85,7 @@ def test_decoding_probability_follows_the_source_algorithm_on_a_fine_grid() -> N
 
 
 def test_sci_draws_decode_at_the_curve_s_rate_and_are_reproducible() -> None:
-    """Simulator._sci_draws: one uniform per link from the SCI stream; the share decoded matches
+    """Simulator.chunks.sci_draws: one uniform per link from the SCI stream; the share decoded matches
     1 - BLER within 5 standard errors at every SINR, and the same seed gives the same draws."""
     cfg = apply_overrides(preset("paper"), ["sps.sci_decoding=sinr", "sim.warmup_subframes=0"])
     sim = Simulator(cfg)
@@ -93,13 +93,13 @@ def test_sci_draws_decode_at_the_curve_s_rate_and_are_reproducible() -> None:
     n = 40_000
     for sinr_db in (-7.0, -5.0, -3.2, -2.0, -1.0, 0.0, 2.0):
         p = 1.0 - _ns3_bler(sinr_db)
-        share = float(np.less(*sim._sci_draws(np.full(n, sinr_db))).mean())
+        share = float(np.less(*sim.chunks.sci_draws(np.full(n, sinr_db))).mean())
         assert abs(share - p) <= 5.0 * math.sqrt(max(p * (1.0 - p), 1e-12) / n) + 1e-12, (sinr_db, share, p)
     a, b = Simulator(cfg), Simulator(cfg)
     a.reset(seed=9)
     b.reset(seed=9)
     x = np.linspace(-6.0, 1.0, 500)
-    np.testing.assert_array_equal(np.less(*a._sci_draws(x)), np.less(*b._sci_draws(x)))
+    np.testing.assert_array_equal(np.less(*a.chunks.sci_draws(x)), np.less(*b.chunks.sci_draws(x)))
     # the stream is the child of the root seed after the named streams (what an eighth name would get)
     expected = np.random.default_rng(np.random.SeedSequence(9).spawn(len(STREAM_NAMES) + 1)[-1]).random(5)
     np.testing.assert_array_equal(sci_stream(9).random(5), expected)
@@ -110,8 +110,8 @@ def test_the_offset_shifts_the_pscch_sinr() -> None:
     sim = Simulator(cfg)
     sim.reset(seed=1, warmup_subframes=0)
     # 3 dB on the PSSCH is -7 dB on the PSCCH: BLER 1, never decoded; 12 dB is 2 dB: always decoded
-    assert not np.less(*sim._sci_draws(np.full(1000, 3.0))).any()
-    assert np.less(*sim._sci_draws(np.full(1000, 12.0))).all()
+    assert not np.less(*sim.chunks.sci_draws(np.full(1000, 3.0))).any()
+    assert np.less(*sim.chunks.sci_draws(np.full(1000, 12.0))).all()
 
 
 # --------------------------------------------------------------------- a hand-built scene
@@ -147,9 +147,9 @@ def _run_scene(mode: str) -> tuple[Simulator, np.ndarray]:
     cfg = apply_overrides(preset("paper"), [*SCENE, f"sps.sci_decoding={mode}"])
     sim = Simulator(cfg)
     sim.reset(seed=3, warmup_subframes=0)
-    sim.resource = np.array([R_RES] + [X_RES] * 6 + OTHER_RES, dtype=np.int64)
-    sim.counter = np.full(10, 10, dtype=np.int64)
-    sim.counter[R] = 1  # R reselects at the end of this period; nobody else does
+    sim.scheduler.resource = np.array([R_RES] + [X_RES] * 6 + OTHER_RES, dtype=np.int64)
+    sim.scheduler.counter = np.full(10, 10, dtype=np.int64)
+    sim.scheduler.counter[R] = 1  # R reselects at the end of this period; nobody else does
     pos = _scene_positions()
     sim.set_offsets(pos - mobility.positions_m(sim.road, sim.state))
     sim.run(sim.rri - 1)  # every transmission of the period, before its end
@@ -214,7 +214,7 @@ def test_half_duplex_receivers_record_no_sci_in_either_mode() -> None:
         cfg = apply_overrides(preset("paper"), [*SCENE, f"sps.sci_decoding={mode}"])
         sim = Simulator(cfg)
         sim.reset(seed=3, warmup_subframes=0)
-        sim.resource = np.array([R_RES] + [X_RES] * 6 + OTHER_RES, dtype=np.int64)
+        sim.scheduler.resource = np.array([R_RES] + [X_RES] * 6 + OTHER_RES, dtype=np.int64)
         sim.set_offsets(_scene_positions() - mobility.positions_m(sim.road, sim.state))
         sim.run(sim.rri - 1)
         rsrp = sim.period_rsrp_dbm.reshape(sim.n, sim.n_res)
@@ -318,7 +318,7 @@ def test_always_is_bit_identical_to_the_code_before_the_switch(name: str) -> Non
     sim.reset(seed=seed)
     result = sim.run(n)
     assert result.metrics.summary()["prr_mean"] == prr
-    assert (sim.n_reselections, sim.n_keeps) == counts
+    assert (sim.n_reselections, sim.scheduler.n_keeps) == counts
     assert int(np.sum(sim.resource * np.arange(sim.n))) == res_sum
     assert hashlib.sha256(sim.resource.astype(np.int64).tobytes()).hexdigest()[:16] == res_sha
     if sinr_sum is not None:

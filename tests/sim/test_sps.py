@@ -80,12 +80,12 @@ def test_observed_keep_frequency_and_counter_cycle() -> None:
     sim = Simulator(cfg)
     sim.reset(seed=4, warmup_subframes=0)
     sim.run(60_000, record=False)
-    n = sim.n_expiries
+    n = sim.scheduler.n_expiries
     # 21 vehicles x 600 periods / mean counter 10 = about 1260 expiries
     assert 1000 < n < 1500
-    freq = sim.n_keeps / n
+    freq = sim.scheduler.n_keeps / n
     assert abs(freq - 0.6) < 4 * np.sqrt(0.6 * 0.4 / n)
-    assert n - sim.n_keeps == sim.n_reselections
+    assert n - sim.scheduler.n_keeps == sim.n_reselections
     lo, hi = sps.counter_range(cfg.sps, cfg.traffic.rri_ms)
-    assert np.all((sim.counter >= 1) & (sim.counter <= hi))
+    assert np.all((sim.scheduler.counter >= 1) & (sim.scheduler.counter <= hi))
     assert lo == 5

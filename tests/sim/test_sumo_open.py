@@ -71,7 +71,7 @@ def _expected_choices(sim: Simulator, links: dict[str, np.ndarray], v: int) -> t
     period (nothing before): the candidates, and those it may pick (TS 36.213 14.1.1.6 steps 5-8)."""
     cfg = sim.config.sps
     rri, n_sub = sim.rri, sim.n_sub
-    slots = (sim.generation_slot[v] + cfg.t1_subframes + np.arange(cfg.selection_window_subframes)) % rri
+    slots = (sim.scheduler.generation_slot[v] + cfg.t1_subframes + np.arange(cfg.selection_window_subframes)) % rri
     cand = (slots[:, None] * n_sub + np.arange(n_sub)[None, :]).reshape(-1)
     heard = links["rx"] == v
     res = (links["subframe"][heard] % rri) * n_sub + links["subchannel"][heard]
@@ -104,7 +104,7 @@ def test_entering_vehicle_listens_then_selects_by_sensing() -> None:
         if checked >= 12:
             break
         assert sim.present is not None
-        new = np.flatnonzero(sim._joining & sim.present)  # entered at the end of the last period
+        new = np.flatnonzero(sim.scheduler.joining & sim.present)  # entered at the end of the last period
         assert np.all(sim.resource[new] == -1) and np.all(sim.snapshot().slot[new] == -1)
         links = _period_links(sim)
         for v in new.tolist():
@@ -113,7 +113,7 @@ def test_entering_vehicle_listens_then_selects_by_sensing() -> None:
             cand, allowed = _expected_choices(sim, links, v)
             assert allowed.size <= 0.6 * cand.size  # the check can fail: a random pick would often miss
             assert sim.resource[v] in allowed, (v, sim.resource[v])
-            assert sim.counter[v] >= 5
+            assert sim.scheduler.counter[v] >= 5
             checked += 1
     assert checked >= 12, checked  # a random pick passes all with probability < 0.6^12 = 0.002
     assert sim.n_entries >= checked

@@ -38,7 +38,19 @@ from cv2x_marl.sim.kernels.per import (
     per_success,
     success_of_ratio,
 )
-from cv2x_marl.sim.kernels.period import CHUNK_TILE_BYTES, chunk_tile_subframes, period_chunk, sci_probability
+from cv2x_marl.sim.kernels.period import (
+    CHUNK_TILE_BYTES,
+    ChunkBuffers,
+    ChunkLinks,
+    ChunkResult,
+    ChunkVehicles,
+    DistanceBins,
+    LinkModel,
+    SciModel,
+    chunk_tile_subframes,
+    period_chunk,
+    sci_probability,
+)
 from cv2x_marl.sim.kernels.shadowing import received_powers, shadowing_update_dense, shadowing_update_sparse
 from cv2x_marl.sim.kernels.snapshot import (
     levels_db,
@@ -59,6 +71,13 @@ __all__ = [
     "MODEL_PER_TABLE_LOG",
     "MODEL_THRESHOLD",
     "WB1_CONSTANTS",
+    "ChunkBuffers",
+    "ChunkLinks",
+    "ChunkResult",
+    "ChunkVehicles",
+    "DistanceBins",
+    "LinkModel",
+    "SciModel",
     "active_links",
     "chunk_tile_subframes",
     "db_below",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -33,56 +34,155 @@ def chunk_tile_subframes(n: int, n_sub: int, rri: int, tile_bytes: int | None = 
     return max(1, min(rri, budget // max(1, 8 * n * n_sub)))
 
 
-@njit(cache=True)
+class ChunkLinks(NamedTuple):
+    """The period's ordered pairs and the links a chunk visits (:func:`period_chunk`).
+
+    Attributes:
+        rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
+            power (mW, faded).
+        subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
+            active, increasing (from :func:`~cv2x_marl.sim.kernels.pairs.active_links`: a chunk of a few
+            transmitters visits only their links, possibly none); without, every link is visited and
+            checked against ``active``.
+    """
+
+    rx: NDArray[np.int64]
+    tx: NDArray[np.int64]
+    distance_m: FloatArray
+    rx_mw: FloatArray
+    subset: bool
+    links: NDArray[np.int64]
+
+
+class ChunkVehicles(NamedTuple):
+    """Per vehicle [N]: who transmits in the chunk and the SPS state the links read.
+
+    Attributes:
+        active: [N] transmits in the chunk.
+        resource, slot: [N] reserved resource and its subframe.
+        releasing: [N] will reselect: its SCI reserves nothing (TS 36.213 14.1.1.6).
+    """
+
+    active: NDArray[np.bool_]
+    resource: NDArray[np.int64]
+    slot: NDArray[np.int64]
+    releasing: NDArray[np.bool_]
+
+
+class LinkModel(NamedTuple):
+    """The PSSCH link model of a chunk.
+
+    Attributes:
+        n_res: resources per period; n_sub: subchannels per subframe (resource ``r`` is slot
+            ``r // n_sub``, subchannel ``r % n_sub``).
+        noise_mw: noise power, mW.
+        model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
+        per_sinr_db, per: [K] the PER table.
+        threshold_db: SINR threshold of the threshold model, dB.
+        sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
+        flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
+            the power of the subframe's other subchannels adds to the interference); 0: none.
+        leakage: [n_sub, n_sub] the 3gpp in-band leakage ``M[victim, interferer]``
+            (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
+            ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
+            :func:`cv2x_marl.sim.chunk.inband_leakage`), adds to the interference and to the S-RSSI.
+    """
+
+    n_res: int
+    n_sub: int
+    noise_mw: float
+    model: int
+    per_sinr_db: FloatArray
+    per: FloatArray
+    threshold_db: float
+    sensitivity_dbm: float
+    flat_inband_lin: float
+    leakage: FloatArray
+
+
+class SciModel(NamedTuple):
+    """``sps.sci_decoding``: which SCIs a receiver decodes.
+
+    Attributes:
+        sinr_lin, bler: the PSCCH BLER curve (points in linear SINR, :class:`cv2x_marl.sim.link.PscchCurve`);
+            an SCI counts only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
+        offset_db: ``sps.sci_sinr_offset_db``.
+        gates_pssch: ``sps.sci_gates_pssch``: a link succeeds only if its SCI decodes too (``P`` times
+            the SCI's decoding probability; ``P0`` likewise with the SCI at the SNR).
+    """
+
+    sinr_lin: FloatArray
+    bler: FloatArray
+    offset_db: float
+    gates_pssch: bool
+
+
+class ChunkBuffers(NamedTuple):
+    """The arrays :func:`period_chunk` updates in place.
+
+    Attributes:
+        period_rssi_mw: [N * n_res] the period's S-RSSI sums, mW.
+        period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW).
+        total: [N * n_res] zeros, a scratch for the power sums (the first ``N * tile_subframes * n_sub``
+            entries used): left zero again on return.
+        total_slot: [N * RRI] zeros, the scratch for the flat model's power per receiver and subframe
+            (summed link by link, as the numpy path's ``bincount``): left zero again on return.
+        tile_subframes: subframes per tile (:func:`chunk_tile_subframes`), >= 1; any value gives the same
+            results.
+    """
+
+    period_rssi_mw: FloatArray
+    period_sci_mw: FloatArray
+    total: FloatArray
+    total_slot: FloatArray
+    tile_subframes: int
+
+
+class DistanceBins(NamedTuple):
+    """The PRR accumulator's layout (:class:`cv2x_marl.sim.metrics.PrrAccumulator`): ``n_bins`` distance
+    bins of ``bin_m`` metres and ``n_causes`` loss causes."""
+
+    bin_m: float
+    n_bins: int
+    n_causes: int
+
+
+class ChunkResult(NamedTuple):
+    """What :func:`period_chunk` returns.
+
+    Attributes:
+        tx, rx, p, cause: [L] the active links, in link order: transmitter, receiver, success probability
+            and cause code (:data:`cv2x_marl.sim.metrics.CAUSE_CODE`).
+        bin_n, bin_decoded, bin_expected: [n_bins] the chunk's per-distance-bin sums.
+        bin_causes: [n_causes * n_bins] links per cause and bin, cause-major.
+        node_n, node_decoded, node_expected: [N] the chunk's per-transmitter sums.
+    """
+
+    tx: NDArray[np.int64]
+    rx: NDArray[np.int64]
+    p: FloatArray
+    cause: NDArray[np.int8]
+    bin_n: NDArray[np.int64]
+    bin_decoded: NDArray[np.int64]
+    bin_expected: FloatArray
+    bin_causes: NDArray[np.int64]
+    node_n: NDArray[np.int64]
+    node_decoded: NDArray[np.int64]
+    node_expected: FloatArray
+
+
 def period_chunk(
-    rx: NDArray[np.int64],
-    tx: NDArray[np.int64],
-    distance_m: FloatArray,
-    rx_mw: FloatArray,
-    active: NDArray[np.bool_],
-    resource: NDArray[np.int64],
-    slot: NDArray[np.int64],
-    n_res: int,
-    noise_mw: float,
+    pairs: ChunkLinks,
+    vehicles: ChunkVehicles,
+    link_model: LinkModel,
+    sci: SciModel,
+    buffers: ChunkBuffers,
+    bins: DistanceBins,
     link_rng: np.random.Generator,
-    model: int,
-    per_sinr_db: FloatArray,
-    per: FloatArray,
-    threshold_db: float,
-    sensitivity_dbm: float,
-    releasing: NDArray[np.bool_],
-    period_rssi_mw: FloatArray,
-    period_sci_mw: FloatArray,
-    bin_m: float,
-    n_bins: int,
-    n_causes: int,
-    subset: bool,
-    links: NDArray[np.int64],
-    total: FloatArray,
     sci_rng: np.random.Generator,
-    sci_sinr_lin: FloatArray,
-    sci_bler: FloatArray,
-    sci_offset_db: float,
-    sci_gates_pssch: bool,
-    n_sub: int,
-    flat_inband_lin: float,
-    total_slot: FloatArray,
-    leakage: FloatArray,
-    tile_subframes: int,
-) -> tuple[
-    NDArray[np.int64],
-    NDArray[np.int64],
-    FloatArray,
-    NDArray[np.int8],
-    NDArray[np.int64],
-    NDArray[np.int64],
-    FloatArray,
-    NDArray[np.int64],
-    NDArray[np.int64],
-    NDArray[np.int64],
-    FloatArray,
-]:
-    """One chunk of the simulator's period (``Simulator._chunk``) in compiled passes over the links, tile by tile.
+) -> ChunkResult:
+    """One chunk of the simulator's period (:meth:`cv2x_marl.sim.chunk.ChunkRunner.run`) in compiled passes
+    over the links, tile by tile.
 
     Pass 1: the power each receiver gets on each resource from the active transmitters,
     ``total[rx * n_res + resource[tx]] += rx_mw`` in link order (``np.bincount``'s additions, so equal
@@ -112,47 +212,113 @@ def period_chunk(
     tile-ordered inputs live in the outputs' arrays until that pass) and ``8 N tile n_sub`` bytes.
 
     Args:
-        rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
-            power (mW, faded).
-        active, resource, slot, releasing: [N] per vehicle.
-        n_res: resources per period.
-        noise_mw: noise power, mW.
+        pairs: the period's ordered pairs and the chunk's links (:class:`ChunkLinks`).
+        vehicles: per vehicle, who transmits and its resource (:class:`ChunkVehicles`).
+        link_model: noise, PER table or threshold, sensitivity, in-band emission (:class:`LinkModel`).
+        sci: the SCI decoding model (:class:`SciModel`).
+        buffers: the period's sensing sums and the scratches, updated in place (:class:`ChunkBuffers`).
+        bins: the accumulator's distance bins and causes (:class:`DistanceBins`).
         link_rng: the simulator's ``link`` stream (advanced by one draw per active link).
-        model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
-        per_sinr_db, per: [K] the PER table.
-        threshold_db: SINR threshold of the threshold model, dB.
-        sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
-        period_rssi_mw: [N * n_res] the period's S-RSSI sums, updated in place.
-        period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW), in place.
-        bin_m, n_bins, n_causes: the accumulator's distance bins and causes.
-        subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
-            active, increasing (from :func:`active_links`: a chunk of a few transmitters visits only their
-            links, possibly none); without, every link is visited and checked against ``active``.
-        total: [N * n_res] zeros, a scratch for the power sums (the first ``N * tile_subframes * n_sub``
-            entries used): left zero again on return.
-        sci_rng, sci_sinr_lin, sci_bler, sci_offset_db: ``sps.sci_decoding=sinr``: the SCI stream (one
-            draw per active link, as ``Simulator._sci_draws``), the PSCCH BLER curve (points in linear
-            SINR, :class:`cv2x_marl.sim.link.PscchCurve`) and ``sps.sci_sinr_offset_db``; an SCI counts
-            only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
-        sci_gates_pssch: ``sps.sci_gates_pssch``: a link succeeds only if its SCI decodes too (``P`` times
-            the SCI's decoding probability; ``P0`` likewise with the SCI at the SNR).
-        n_sub: subchannels per subframe (resource ``r`` is slot ``r // n_sub``, subchannel ``r % n_sub``).
-        flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
-            the power of the subframe's other subchannels adds to the interference); 0: none.
-        total_slot: [N * RRI] zeros, the scratch for the flat model's power per receiver and subframe
-            (summed link by link, as the numpy path's ``bincount``): left zero again on return.
-        leakage: [n_sub, n_sub] the 3gpp in-band leakage ``M[victim, interferer]``
-            (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
-            ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
-            ``Simulator._chunk``), adds to the interference and to the S-RSSI.
-        tile_subframes: subframes per tile (:func:`chunk_tile_subframes`), >= 1; any value gives the same
-            results.
+        sci_rng: ``sps.sci_decoding=sinr``: the SCI stream (one draw per active link, as
+            :meth:`cv2x_marl.sim.chunk.ChunkRunner.sci_draws`); unused otherwise.
 
     Returns:
-        ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n, bin_decoded,
-        bin_expected`` [n_bins], ``bin_causes`` [n_causes * n_bins] (cause-major), ``node_n,
+        :class:`ChunkResult`: ``tx, rx, p, cause`` [L] of the active links, then the chunk's ``bin_n,
+        bin_decoded, bin_expected`` [n_bins], ``bin_causes`` [n_causes * n_bins] (cause-major), ``node_n,
         node_decoded, node_expected`` [N].
     """
+    # the named tuples' fields as plain arguments: numba dispatches a named tuple through its Python typeof
+    # (about 2 us per call and tuple, measured), plain arguments through its C fast path
+    out = _period_chunk(
+        pairs.rx,
+        pairs.tx,
+        pairs.distance_m,
+        pairs.rx_mw,
+        pairs.subset,
+        pairs.links,
+        vehicles.active,
+        vehicles.resource,
+        vehicles.slot,
+        vehicles.releasing,
+        link_model.n_res,
+        link_model.n_sub,
+        link_model.noise_mw,
+        link_model.model,
+        link_model.per_sinr_db,
+        link_model.per,
+        link_model.threshold_db,
+        link_model.sensitivity_dbm,
+        link_model.flat_inband_lin,
+        link_model.leakage,
+        sci.sinr_lin,
+        sci.bler,
+        sci.offset_db,
+        sci.gates_pssch,
+        buffers.period_rssi_mw,
+        buffers.period_sci_mw,
+        buffers.total,
+        buffers.total_slot,
+        buffers.tile_subframes,
+        bins.bin_m,
+        bins.n_bins,
+        bins.n_causes,
+        link_rng,
+        sci_rng,
+    )
+    return ChunkResult._make(out)
+
+
+@njit(cache=True)
+def _period_chunk(
+    rx: NDArray[np.int64],
+    tx: NDArray[np.int64],
+    distance_m: FloatArray,
+    rx_mw: FloatArray,
+    subset: bool,
+    links: NDArray[np.int64],
+    active: NDArray[np.bool_],
+    resource: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    releasing: NDArray[np.bool_],
+    n_res: int,
+    n_sub: int,
+    noise_mw: float,
+    model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    flat_inband_lin: float,
+    leakage: FloatArray,
+    sci_sinr_lin: FloatArray,
+    sci_bler: FloatArray,
+    sci_offset_db: float,
+    sci_gates_pssch: bool,
+    period_rssi_mw: FloatArray,
+    period_sci_mw: FloatArray,
+    total: FloatArray,
+    total_slot: FloatArray,
+    tile_subframes: int,
+    bin_m: float,
+    n_bins: int,
+    n_causes: int,
+    link_rng: np.random.Generator,
+    sci_rng: np.random.Generator,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int8],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    FloatArray,
+]:
+    """The compiled body of :func:`period_chunk`: the fields of its named tuples in their order, the
+    fields of :class:`ChunkResult` returned in theirs."""
     n = active.shape[0]
     n_visit = links.shape[0] if subset else rx.shape[0]
     rri = n_res // n_sub
@@ -366,7 +532,9 @@ def period_chunk(
             node_dec[t] += outcome
             node_exp[t] += p
         m += 1
-    return out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+    return ChunkResult(
+        out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
+    )
 
 
 @njit(cache=True)
@@ -425,7 +593,7 @@ def _commit_rssi(
 @njit(cache=True)
 def _leak_mw(total: FloatArray, base: int, leakage: FloatArray, victim: int, n_sub: int) -> float:
     """In-band leakage into subchannel ``victim`` of one receiver's subframe: ``sum_i M[victim, i]
-    total[base + i]``, summed in ``i`` order (``Simulator._inband_leakage``'s arithmetic)."""
+    total[base + i]``, summed in ``i`` order (the arithmetic of :func:`cv2x_marl.sim.chunk.inband_leakage`)."""
     acc = total[base] * leakage[victim, 0]
     for i in range(1, n_sub):
         acc = acc + total[base + i] * leakage[victim, i]
