@@ -17,8 +17,8 @@ from cv2x_marl.config import ScenarioConfig, apply_overrides, to_dict
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.memory import LINK_ROW_BYTES, estimate_memory_bytes
 from cv2x_marl.sim.chunk import LINK_COLUMNS
+from cv2x_marl.sim.memory import LINK_ROW_BYTES, estimate_memory_bytes
 
 
 def links_table(links: dict[str, np.ndarray]) -> pa.Table:
