@@ -22,7 +22,21 @@ from pettingzoo import ParallelEnv
 from cv2x_marl.checks import is_int, is_real
 from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides
 from cv2x_marl.config import preset as load_preset
-from cv2x_marl.env.observation import VERSIONS, ObservationLayout, build_observations, co_channel_table
+from cv2x_marl.env.observation import (
+    VERSIONS,
+    ObservationLayout,
+    build_observations,
+    co_channel_table,
+    decode_observations,
+)
+from cv2x_marl.env.planning import (
+    PLAN_GRID_M,
+    SearchGridError,
+    check_reach_grid,
+    model_plan,
+    reachable_set,
+    sensing_plan,
+)
 from cv2x_marl.env import step as step_core
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
@@ -80,7 +94,7 @@ class MobilityEnv(ParallelEnv):
             diagonal of the scene (the road box: 636.4 m for ``paper``, 2000.1 m for ``highway``). With
             observation >= 1 in snapshot mode the plan searches the reachable square (``2 x max_cycles x
             max_step_m`` wide, unless ``max_drift_m`` or ``roi`` bound it) on a 20 m grid, which must fit
-            :data:`~cv2x_marl.policies.optimum.MAX_GRID_POINTS` (``max_step_m`` up to 199.9 m with 100
+            :data:`~cv2x_marl.env.planning.MAX_GRID_POINTS` (``max_step_m`` up to 199.9 m with 100
             steps); larger ones are refused with the figure.
         movers: indices of the vehicles whose actions move them (None: all); the others stay put.
         reward: ``individual`` (own eq. 12 utility), ``team`` (mean over agents) or ``mixed``
@@ -258,7 +272,7 @@ class MobilityEnv(ParallelEnv):
         road = Road.from_config(cfg.road)
         self._wrap_road = road if cfg.road.wrap_distances else None
         #: [2] the torus of the pair geometry (inf where distances do not wrap)
-        self._period_m = np.asarray(road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf), dtype=float)
+        self.period_m = np.asarray(road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf), dtype=float)
         self._geometry: PairGeometry | None = None
         box = road.box_m
         self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
@@ -303,8 +317,6 @@ class MobilityEnv(ParallelEnv):
             except Exception as exc:
                 raise ValueError(f"invalid env argument model={model!r}: {exc}") from exc
         if self.layout.version >= 1 and mode == "snapshot":  # the plan's search, refused before any reset
-            from cv2x_marl.policies.optimum import PLAN_GRID_M, SearchGridError, check_reach_grid
-
             try:
                 check_reach_grid(self, PLAN_GRID_M, f"observation version {self.layout.version}'s plan")
             except SearchGridError as exc:
@@ -480,7 +492,7 @@ class MobilityEnv(ParallelEnv):
         )
         self.utility[i] = u
         assert self._geometry is not None
-        step_core.move_geometry(i, pos, self._period_m, self._geometry.disp_m, self._geometry.dist2_m2)
+        step_core.move_geometry(i, pos, self.period_m, self._geometry.disp_m, self._geometry.dist2_m2)
         reward, self._base_prev[i] = step_core.step_reward(u, self._base_prev[i], self._improvement)
         if self.layout.version >= 1:
             self._u_prev[i], self._u_now[i], self._u_best[i], better = step_core.own_state_update(
@@ -599,9 +611,6 @@ class MobilityEnv(ParallelEnv):
         return float(step_core.reach_m(self.t, self.max_cycles, self.settle_steps, self.max_step_m))
 
     def _reset_v1_state(self, cached_plan_m: NDArray[np.float64] | None = None) -> None:
-        from cv2x_marl.policies.optimum import model_plan, reachable_set, sensing_plan
-        from cv2x_marl.policies.scripted import decode_observations
-
         self._u_now = self.utility.copy() if self.normalise_reward else self.utility / np.maximum(self._target_count, 1)
         self._u_prev = self._u_now.copy()
         self._u_start = self._u_now.copy()
@@ -625,8 +634,6 @@ class MobilityEnv(ParallelEnv):
             return
         if self.t >= self.max_cycles - self.settle_steps:
             return
-        from cv2x_marl.policies.optimum import sensing_plan
-
         movers = np.flatnonzero(self.mover_mask)
         if movers.size:
             self.plan_m[movers] = sensing_plan(self, movers)

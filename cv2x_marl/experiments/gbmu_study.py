@@ -220,7 +220,7 @@ class Judge:
         """Mover ``b``'s utility at many positions, for :func:`~cv2x_marl.policies.optimum.best_reachable`."""
         if self.kind == "simulator":
             return _SnapshotRow(self.links, b)
-        from cv2x_marl.policies.optimum import ModelRow
+        from cv2x_marl.env.planning import ModelRow
 
         i = self.inputs
         return ModelRow(i.rx_m[b], i.l_m[b], i.nsv[b], i.mask[b], self.model)
@@ -340,7 +340,7 @@ def optimum_climb(
     """
     from tqdm import tqdm
 
-    from cv2x_marl.policies.optimum import ReachableSet, best_reachable
+    from cv2x_marl.env.planning import ReachableSet, best_reachable
 
     start = links.start_m
     target = links.target if judge is None else judge.target

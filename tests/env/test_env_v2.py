@@ -17,7 +17,7 @@ from cv2x_marl.env import MobilityEnv
 from cv2x_marl.env.mobility_env import V2_DEFAULTS
 from cv2x_marl.env.observation import OWN_V1_NAMES
 from cv2x_marl.experiments.evaluate import evaluate
-from cv2x_marl.policies.optimum import ReachableSet, best_reachable, reachable_set, sensing_plan
+from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set, sensing_plan
 from cv2x_marl.sim.evaluate import SnapshotLinks
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}

@@ -7,7 +7,8 @@ import pytest
 
 from cv2x_marl.env import MobilityEnv
 from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
-from cv2x_marl.policies.optimum import OptimumPolicy, ReachableSet, best_reachable, reachable_set
+from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set
+from cv2x_marl.policies.optimum import OptimumPolicy
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
 
