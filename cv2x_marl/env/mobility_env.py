@@ -19,16 +19,15 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
-from cv2x_marl.checks import is_int, is_real
-from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides
-from cv2x_marl.config import preset as load_preset
+from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.env import step as step_core
 from cv2x_marl.env.observation import (
-    VERSIONS,
     ObservationLayout,
     build_observations,
     co_channel_table,
     decode_observations,
 )
+from cv2x_marl.env.options import V1_DEFAULTS, V2_DEFAULTS, EnvOptions
 from cv2x_marl.env.planning import (
     PLAN_GRID_M,
     SearchGridError,
@@ -37,27 +36,13 @@ from cv2x_marl.env.planning import (
     reachable_set,
     sensing_plan,
 )
-from cv2x_marl.env import step as step_core
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.road import Road
 
-MODES = ("snapshot", "traffic")
-REWARDS = ("individual", "team", "mixed")
-#: ``utility``: the reward of a step is the utility after it (v0); ``improvement``: its change over
-#: the step, a potential-based shaping whose episode sum is final minus start utility
-REWARD_FORMS = ("utility", "improvement")
-#: ``offset``: the action is the step (times ``max_step_m``); ``plan_residual``: the action is added to
-#: the step towards the observed plan (``clip((plan - position) / max_step_m, -1, 1)``) before clipping
-ACTION_MODES = ("offset", "plan_residual")
-#: traffic mode: ``offset`` (radio position off the road position) or ``speed`` (SUMO speed / lane commands)
-TRAFFIC_ACTIONS = ("offset", "speed")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
-#: most steps per episode (``max_cycles``): 100 times the default; the reachable square, the tracks and
-#: the run time grow with it (an episode of traffic mode simulates ``max_cycles`` SPS periods)
-MAX_CYCLES = 10_000
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -72,11 +57,6 @@ def check_copies(env: MobilityEnv, copies: int) -> None:
         )
 
 
-def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
-    if not ok:
-        raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
-
-
 class MobilityEnv(ParallelEnv):
     """Controlled mobility in a C-V2X Mode 4 network (PettingZoo ParallelEnv).
 
@@ -89,7 +69,7 @@ class MobilityEnv(ParallelEnv):
         mode: ``snapshot`` (positions and SPS resources of a stage-1 snapshot; only the agents'
             offsets move the vehicles) or ``traffic`` (vehicles drive, SPS runs one period per
             step, agents add bounded offsets to their road positions).
-        max_cycles: steps per episode (truncation, all agents together), 1 .. :data:`MAX_CYCLES`.
+        max_cycles: steps per episode (truncation, all agents together), 1 .. :data:`~cv2x_marl.env.options.MAX_CYCLES`.
         max_step_m: offset of a full action (actions are ``Box(-1, 1, (2,))`` times this); at most the
             diagonal of the scene (the road box: 636.4 m for ``paper``, 2000.1 m for ``highway``). With
             observation >= 1 in snapshot mode the plan searches the reachable square (``2 x max_cycles x
@@ -165,91 +145,30 @@ class MobilityEnv(ParallelEnv):
         reset_cache: int = 0,
         traffic_action: str = "offset",
     ) -> None:
-        if isinstance(overrides, str):  # one assignment, not its characters
-            overrides = [overrides]
-        _check(
-            "overrides",
-            isinstance(overrides, Sequence) and all(isinstance(o, str) for o in overrides),
-            "a section.key=value string or a list of them",
-            overrides,
-        )
-        cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
-        _check("mode", mode in MODES, " | ".join(MODES), mode)
-        _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
-        _check(
-            "max_cycles",
-            is_int(max_cycles) and 1 <= max_cycles <= MAX_CYCLES,
-            f"integer in [1, {MAX_CYCLES}]",
-            max_cycles,
-        )
-        _check("max_step_m", is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
-        _check("local_ratio", is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
-        _check("p_min", is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
-        _check("scale_m", is_real(scale_m) and scale_m > 0, "finite number > 0", scale_m)
-        _check(
-            "max_drift_m",
-            max_drift_m is None or (is_real(max_drift_m) and max_drift_m > 0),
-            "null or finite number > 0",
-            max_drift_m,
-        )
-        _check("normalise_reward", isinstance(normalise_reward, bool | np.bool_), "bool", normalise_reward)
-        _check("roi", isinstance(roi, bool | np.bool_), "bool", roi)
-        _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
-        _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
-        _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
-        _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1 | 2", observation)
-        _check(
-            "observation",
-            observation < 2 or (cfg.channel.pathloss == "winner_b1" and truth_los != "geometry"),
-            "0 | 1 when channel.pathloss is not winner_b1 or truth_los is geometry (the v2 sensing estimate "
-            "runs on the compiled WINNER+ B1 kernels)",
-            observation,
-        )
-        _check(
-            "privileged",
-            isinstance(privileged, bool) and (observation >= 1 or not privileged),
-            "bool (observation >= 1)",
-            privileged,
-        )
-        _check("reward_form", reward_form in REWARD_FORMS, " | ".join(REWARD_FORMS), reward_form)
-        _check(
-            "action_mode",
-            action_mode in ACTION_MODES and (action_mode == "offset" or (observation >= 1 and mode == "snapshot")),
-            " | ".join(ACTION_MODES) + " (plan_residual: observation >= 1, snapshot mode)",
-            action_mode,
-        )
-        _check(
-            "settle_steps",
-            is_int(settle_steps) and 0 <= settle_steps < max_cycles,
-            "integer in [0, max_cycles)",
-            settle_steps,
-        )
+        opts = EnvOptions(
+            preset=preset, overrides=overrides, config=config, mode=mode, max_cycles=max_cycles,
+            max_step_m=max_step_m, movers=movers, reward=reward, local_ratio=local_ratio,
+            normalise_reward=normalise_reward, p_min=p_min, n_neighbours=n_neighbours, scale_m=scale_m,
+            max_drift_m=max_drift_m, roi=roi, truth_los=truth_los, render_mode=render_mode, observation=observation,
+            privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
+            action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
+        )  # fmt: skip
+        cfg = opts.scenario()
+        road = Road.from_config(cfg.road)
+        box = road.box_m
+        #: [2] the scene's road box (m; a square of the road's length on the highway)
+        self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
+        opts.check_scenario(cfg, float(np.hypot(*self.box_m)), self.box_m)
         if cfg.vehicles.population == "open":
             raise ConfigError(
                 "the env needs vehicles.population=fixed: its agents are the vehicles of the scenario, a fixed set "
                 "per episode (open populations, where vehicles enter and leave, are for the simulator: "
                 "cv2x-marl simulate, docs/mobility.md)"
             )
+        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`)
+        self.options = opts
         self.config = cfg
         self.n = cfg.n_vehicles
-        if n_neighbours is None:
-            n_neighbours = self.n - 1
-        _check(
-            "n_neighbours",
-            is_int(n_neighbours) and 1 <= n_neighbours <= self.n - 1,
-            f"1 .. {self.n - 1}",
-            n_neighbours,
-        )
-        if movers is not None:
-            _check(
-                "movers", not isinstance(movers, str | bytes), f"a list of vehicle indices 0 .. {self.n - 1}", movers
-            )
-            try:
-                movers = list(movers)
-            except TypeError:
-                _check("movers", False, f"a list of vehicle indices 0 .. {self.n - 1}", movers)
-            bad = [m for m in movers if not (is_int(m) and 0 <= m < self.n)]
-            _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", movers)
         self.mode = mode
         self.max_cycles = max_cycles
         self.max_step_m = float(max_step_m)
@@ -262,6 +181,14 @@ class MobilityEnv(ParallelEnv):
         self.roi = roi
         self.truth_los = truth_los
         self.render_mode = render_mode
+        self.traffic_action = traffic_action
+        self.reward_form = reward_form
+        self._improvement = reward_form == "improvement"
+        self.replan_every = replan_every
+        self.action_mode = action_mode
+        self.settle_steps = settle_steps
+        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
+        self.reset_cache = int(reset_cache)
         self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
         self.agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.mover_mask = np.ones(self.n, dtype=bool)
@@ -269,44 +196,14 @@ class MobilityEnv(ParallelEnv):
             self.mover_mask[:] = False
             self.mover_mask[list(movers)] = True
         self._step_scale_m = self.max_step_m * self.mover_mask.astype(np.float64)  # [N]: 0 for who stays put
-        road = Road.from_config(cfg.road)
         self._wrap_road = road if cfg.road.wrap_distances else None
         #: [2] the torus of the pair geometry (inf where distances do not wrap)
         self.period_m = np.asarray(road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf), dtype=float)
         self._geometry: PairGeometry | None = None
-        box = road.box_m
-        self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
-        scene_m = float(np.hypot(*self.box_m))
-        _check(
-            "max_step_m",
-            self.max_step_m <= scene_m,
-            f"finite number > 0 and <= {scene_m:.1f} (the diagonal of the scene, road box "
-            f"{self.box_m[0]:g} m x {self.box_m[1]:g} m: a larger step leaves it)",
-            max_step_m,
-        )
         self.layout = ObservationLayout(
-            n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
-        )
-        _check(
-            "replan_every",
-            replan_every is None or (is_int(replan_every) and replan_every >= 1),
-            "null or an integer >= 1 (observation 2)",
-            replan_every,
-        )
-        _check("replan_every", replan_every is None or observation >= 2, "null unless observation is 2", replan_every)
-        _check(
-            "traffic_action",
-            traffic_action in TRAFFIC_ACTIONS
-            and (traffic_action == "offset" or (mode == "traffic" and cfg.vehicles.mobility == "sumo")),
-            " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=sumo)",
-            traffic_action,
-        )
-        self.traffic_action = traffic_action
-        self.reward_form = reward_form
-        self._improvement = reward_form == "improvement"
-        self.replan_every = replan_every
-        self.action_mode = action_mode
-        self.settle_steps = settle_steps
+            self.n - 1 if n_neighbours is None else n_neighbours,
+            scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged,
+        )  # fmt: skip
         self.model_name = model
         self.model: Any = None
         if observation >= 1:
@@ -323,10 +220,6 @@ class MobilityEnv(ParallelEnv):
                 raise SearchGridError(
                     f"invalid env arguments max_cycles={max_cycles!r}, max_step_m={max_step_m!r}: {exc}"
                 ) from None
-        _check("reset_cache", is_int(reset_cache) and reset_cache >= 0, "an integer >= 0", reset_cache)
-        _check("reset_cache", reset_cache == 0 or mode == "snapshot", "0 unless mode is snapshot", reset_cache)
-        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
-        self.reset_cache = int(reset_cache)
         self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
@@ -733,10 +626,6 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
-#: what ``cv2x/Mobility-v1`` and ``cv2x/SingleMover-v1`` change from the v0 defaults (any can be overridden)
-V1_DEFAULTS: dict[str, Any] = {"observation": 1, "reward_form": "improvement", "normalise_reward": True}
-
-
 class MobilityEnvV1(MobilityEnv):
     """``cv2x/Mobility-v1``: :class:`MobilityEnv` with :data:`V1_DEFAULTS` (observation version 1,
     improvement rewards per target receiver); keyword arguments as :class:`MobilityEnv`."""
@@ -750,13 +639,6 @@ class MobilityEnvV1(MobilityEnv):
 def mobility_v1(**kwargs: Any) -> MobilityEnv:
     """``cv2x/Mobility-v1`` (:class:`MobilityEnvV1`)."""
     return MobilityEnvV1(**kwargs)
-
-
-#: what ``cv2x/Mobility-v2`` and ``cv2x/SingleMover-v2`` change from the v0 defaults: observation
-#: version 2 (the plan from the mover's sensing estimate), improvement rewards per target receiver
-V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
-#: the defaults of each env version (v0: the constructor's own)
-VERSION_DEFAULTS: dict[str, dict[str, Any]] = {"v0": {}, "v1": V1_DEFAULTS, "v2": V2_DEFAULTS}
 
 
 class MobilityEnvV2(MobilityEnv):

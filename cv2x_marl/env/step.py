@@ -203,7 +203,9 @@ def per_receiver(u: float, count: int, normalise: bool) -> float:
 
 
 @njit(cache=True)
-def move_geometry(i: int, positions_m: FloatArray, period_m: FloatArray, disp_m: FloatArray, dist2_m2: FloatArray) -> None:
+def move_geometry(
+    i: int, positions_m: FloatArray, period_m: FloatArray, disp_m: FloatArray, dist2_m2: FloatArray
+) -> None:
     """Update row and column ``i`` of the pair geometry (``disp_m`` [2, N, N], ``dist2_m2`` [N, N], in
     place) after vehicle ``i`` moved to ``positions_m[i]`` (m; ``period_m`` [2]: the torus, inf where
     the area does not wrap)."""

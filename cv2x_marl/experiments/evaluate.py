@@ -62,7 +62,7 @@ def check_episodes(episodes: int, movers: int) -> None:
 
 def make_eval_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     """The parallel env behind a registered id (SingleMover: only vehicle 0 moves; v1, v2: their defaults)."""
-    from cv2x_marl.env.mobility_env import VERSION_DEFAULTS
+    from cv2x_marl.env.options import VERSION_DEFAULTS
 
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")

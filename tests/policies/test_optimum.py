@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env import MobilityEnv
-from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
 from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set
+from cv2x_marl.experiments.evaluate import evaluate, make_eval_env
 from cv2x_marl.policies.optimum import OptimumPolicy
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
