@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from cv2x_marl.checks import is_int, is_real
 from cv2x_marl.config import ScenarioConfig, _allowed, _base_type, _key
@@ -117,7 +118,7 @@ class EnvOptions:
         "snapshot's resources), docs/model.md; `highway-legacy`: the paper's simplified procedures)",
         allowed="a preset name (docs/config.md)",
     )
-    overrides: tuple[str, ...] = _option(
+    overrides: Sequence[str] = _option(
         (),
         "`section.key=value` strings (see `docs/config.md`); a single string is one assignment",
         shown="()",
@@ -152,7 +153,7 @@ class EnvOptions:
         lo=0.0,
         lo_open=True,
     )
-    movers: tuple[int, ...] | None = _option(
+    movers: Sequence[int] | None = _option(
         None,
         "indices of vehicles whose actions move them (null: all); the others' actions are ignored",
         shown="all",
@@ -317,7 +318,7 @@ class EnvOptions:
 
         return self.config if self.config is not None else apply_overrides(load_preset(self.preset), self.overrides)
 
-    def check_scenario(self, cfg: ScenarioConfig, scene_diagonal_m: float, box_m: Sequence[float]) -> None:
+    def check_scenario(self, cfg: ScenarioConfig, scene_diagonal_m: float, box_m: NDArray[np.float64]) -> None:
         """The rules that depend on the scenario ``cfg`` (its N vehicles, road box ``box_m`` of diagonal
         ``scene_diagonal_m`` m, link model, path loss, mobility)."""
         if cfg.link.model == "rayleigh":
@@ -363,9 +364,10 @@ def options_markdown() -> str:
     lines = ["| argument | type | unit | default | allowed | meaning |", "|---|---|---|---|---|---|"]
     for f in dataclasses.fields(EnvOptions):
         tp, optional = _base_type(hints[f.name])
-        tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
-        if typing.get_origin(tp) is tuple:
+        if typing.get_origin(tp) is not None:  # Sequence[X]
             tname = "list of " + typing.get_args(tp)[0].__name__
+        else:
+            tname = tp.__name__
         tname += " or null" if optional else ""
         default = f.metadata["shown"] or ("null" if f.default is None else str(f.default))
         per_version = [f"{v}: {d[f.name]}" for v, d in VERSION_DEFAULTS.items() if f.name in d]
