@@ -348,9 +348,10 @@ class MobilityEnv(ParallelEnv):
     def step_mover(self, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
         """One step in which only :attr:`fast_mover` moves: its observation, reward, truncation, info.
 
-        What :meth:`step` returns for that vehicle, bit for bit (tested), computed for it alone:
-        its links through :meth:`SnapshotLinks.mover_row` (the interference on them does not change
-        while the others stand still), its row of the pair geometry and its observation. The other
+        What :meth:`step` returns for that vehicle, bit for bit, computed for it alone with the same
+        step functions (:mod:`cv2x_marl.env.step`; the batched copies of :mod:`cv2x_marl.env.batched`
+        call them too): its links through :meth:`SnapshotLinks.mover_row` (the interference on them
+        does not change while the others stand still), its row of the pair geometry and its observation. The other
         vehicles' rewards and observations are not computed, so after this call use only
         ``step_mover`` until the next :meth:`reset` (``SingleMover`` envs do).
         """

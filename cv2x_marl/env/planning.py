@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from cv2x_marl.utility import utility_log
+
 if TYPE_CHECKING:
     from cv2x_marl.env.observation import GbmuInputs, ObservationLayout
     from cv2x_marl.regression.model import TwoDistanceModel
@@ -325,7 +327,7 @@ class ModelRow:
             c = cand[lo : lo + chunk]
             d = np.maximum(np.hypot(c[:, None, 0] - self.rx_m[:, 0], c[:, None, 1] - self.rx_m[:, 1]), 1.0)
             p = self.model.predict(d, self.l_m, self.nsv)
-            out[lo : lo + chunk] = np.log(np.maximum(p, p_min)).sum(axis=1)
+            out[lo : lo + chunk] = utility_log(p, None, p_min)  # eq. 12 (its numpy reference)
         return out
 
 

@@ -58,5 +58,5 @@ def test_refusals_name_the_argument_and_the_allowed_values(kwargs: dict, message
 def test_python_api_types() -> None:
     opts = EnvOptions(max_cycles=np.int64(3), roi=np.bool_(True), overrides="sim.warmup_subframes=200")
     assert opts.max_cycles == 3 and opts.overrides == ("sim.warmup_subframes=200",)
-    with pytest.raises(ValueError, match="invalid env argument max_cycles=3.0"):
+    with pytest.raises(ValueError, match=r"invalid env argument max_cycles=3\.0"):
         EnvOptions(max_cycles=3.0)
