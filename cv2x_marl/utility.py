@@ -9,7 +9,7 @@ compiled reader calls them: the snapshot-link kernels (``link_summaries``, ``row
 The numpy functions below (:func:`utility_log`, :func:`per_node_prr`, :func:`jain_fairness`) are the
 vectorised *reference* of the same definitions for ``[..., R]`` arrays (GBMU, the studies, tests):
 numpy's pairwise summation and vectorised ``log`` may differ from the compiled sequential sums in the
-last bits, so they agree to ~1e-12 relative (``tests/test_utility.py``), not bit for bit.
+last bits, so they agree to ~1e-12 relative (``tests/env/test_observation.py``), not bit for bit.
 
 Arrays are ``[..., R]`` over receivers with an optional boolean ``mask`` of the same shape
 selecting the target receivers ``R_i`` (vehicles in range not transmitting in i's subframe).
