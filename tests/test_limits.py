@@ -15,10 +15,10 @@ import cv2x_marl  # noqa: F401 - registers the env ids
 from cv2x_marl.cli import main
 from cv2x_marl.config import preset
 from cv2x_marl.env import MobilityEnv, parallel_env_v2
-from cv2x_marl.env.mobility_env import MAX_CYCLES
+from cv2x_marl.env.options import MAX_CYCLES
+from cv2x_marl.env.planning import MAX_GRID_POINTS, SearchGridError, _grid
 from cv2x_marl.experiments.evaluate import MAX_ROWS, episode_seeds
 from cv2x_marl.experiments.gbmu_study import MAX_STUDY_BYTES, study_bytes
-from cv2x_marl.policies.optimum import MAX_GRID_POINTS, SearchGridError, _grid
 from cv2x_marl.rng import derive_seeds
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}

@@ -3,14 +3,12 @@
 :meth:`MobilityEnv.step_mover` steps one copy in about 150-200 us, almost all of it Python around
 small arrays. :class:`MoverBatch` keeps the per-step state of K copies (each in snapshot mode with
 one mover and the individual reward, e.g. K ``SingleMover`` envs) in stacked arrays and advances
-all of them with one numba call, :func:`_mover_steps`, which does for each copy exactly what
-``step_mover`` does, in the same order of floating-point operations: the action clip (and the
-plan residual), the settle phase, the drift and region bounds, the mover's links
-(:func:`cv2x_marl.sim.kernels.mover_row_success`'s per-link code), the eq. 12 utility, PRR and
-Jain's index (:func:`~cv2x_marl.sim.kernels.link_summaries`'s additions), the pair-geometry update,
-the reward (utility or improvement), the version-1 own state and the observation
-(:func:`cv2x_marl.env.observation._observation_kernel`). Results are bit-identical to
-``step_mover`` (``tests/env/test_vector.py``).
+all of them with one numba call, :func:`_mover_steps`, which for each copy calls the functions
+``step_mover`` calls (:mod:`cv2x_marl.env.step`: the action clip, plan residual, settle phase, drift
+and region bounds; the eq. 12 utility, PRR and Jain's index; the pair-geometry update; the reward;
+the version-1 own state and entries), the mover's links (:func:`cv2x_marl.sim.kernels.mover_row_success`'s
+per-link code) and the observation kernel (:func:`cv2x_marl.env.observation._observation_kernel`).
+The results are bit-identical to ``step_mover`` by construction (and tested: ``tests/env/test_vector.py``).
 
 Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
 :meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
@@ -23,7 +21,6 @@ Users get it through :class:`cv2x_marl.env.vector.SingleMoverVectorEnv` (Gymnasi
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +28,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cv2x_marl.env.observation import OWN_V1, _observation_kernel
+from cv2x_marl.env import step
+from cv2x_marl.env.observation import _observation_kernel
 from cv2x_marl.sim import kernels
 from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
 
@@ -127,132 +125,64 @@ def _mover_steps(
     n = positions_m.shape[1]
     rows = np.zeros(1, dtype=np.int64)
     drift = np.empty((n, 2))
-    inv = 1.0 / scale_m
     for k in range(n_copies):
         if not active[k]:
             continue
         i = mover[k]
-        a0 = actions[k, 0]
-        a1 = actions[k, 1]
-        clipped = a0 < -1.0 or a0 > 1.0 or a1 < -1.0 or a1 > 1.0
-        x_old = positions_m[k, i, 0]
-        y_old = positions_m[k, i, 1]
-        if residual:  # MobilityEnv._toward_plan
-            a0 = a0 + min(max((plan_m[k, 0] - x_old) / max_step_m, -1.0), 1.0)
-            a1 = a1 + min(max((plan_m[k, 1] - y_old) / max_step_m, -1.0), 1.0)
-        off0 = min(max(a0, -1.0), 1.0) * max_step_m
-        off1 = min(max(a1, -1.0), 1.0) * max_step_m
-        if t[k] >= max_cycles - settle_steps:
-            off0 = 0.0
-            off1 = 0.0
-        x = x_old + off0
-        y = y_old + off1
-        if max_drift_m < np.inf:  # MobilityEnv._bound
-            d0 = x - start_m[k, i, 0]
-            d1 = y - start_m[k, i, 1]
-            f = min(1.0, max_drift_m / max(np.hypot(d0, d1), 1e-12))
-            x = start_m[k, i, 0] + d0 * f
-            y = start_m[k, i, 1] + d1 * f
-        if roi:
-            x = min(max(x, 0.0), box_m[0])
-            y = min(max(y, 0.0), box_m[1])
-        positions_m[k, i, 0] = x
-        positions_m[k, i, 1] = y
+        pos = positions_m[k]
+        x_old = pos[i, 0]
+        y_old = pos[i, 1]
+        # the action and the bounds (step.move_vehicle, as MobilityEnv.step / step_mover)
+        clipped = step.is_clipped(actions[k, 0], actions[k, 1])
+        x, y = step.move_vehicle(
+            actions[k, 0], actions[k, 1], x_old, y_old, start_m[k, i, 0], start_m[k, i, 1], plan_m[k, 0],
+            plan_m[k, 1], max_step_m, max_step_m, residual, t[k] >= max_cycles - settle_steps, max_drift_m, roi,
+            box_m[0], box_m[1],
+        )  # fmt: skip
+        pos[i, 0] = x
+        pos[i, 1] = y
         t[k] += 1
-        # the mover's links (kernels.mover_row_success) and their summary (kernels.link_summaries)
-        count = 0
-        s1 = 0.0
-        s2 = 0.0
-        u = 0.0
+        # the mover's links (kernels.mover_row_success's per-link code), then eq. 12 and the summaries
         for j in range(n):
             if target[k, i, j]:
-                s_dbm = moved_signal_dbm(
-                    x, y, positions_m[k], i, j, period_m, los_row[k], gain_row_db[k], wb1, range2_m2
-                )
-                pj = success_at_level(
+                s_dbm = moved_signal_dbm(x, y, pos, i, j, period_m, los_row[k], gain_row_db[k], wb1, range2_m2)
+                p[k, i, j] = success_at_level(
                     s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
                 )
-                p[k, i, j] = pj
-                count += 1
-                s1 += pj
-                s2 += pj * pj
-                u += math.log(max(pj, p_min))
             else:
                 p[k, i, j] = 0.0
-        prr = 0.0
-        jain = 0.0
-        if count > 0:
-            prr = s1 / count
-            if s2 > 0.0:
-                jain = s1 * s1 / (count * s2)
-        if normalise:
-            u = u / max(count, 1)
+        u, prr, jain, count = step.utility_of(p[k, i], target[k, i], p_min, normalise)
         scalars[k, U] = u
         scalars[k, PRR] = prr
         scalars[k, JAIN] = jain
-        # pair geometry (MobilityEnv._move_geometry): the row first, then the column
-        for j in range(n):
-            dx = positions_m[k, j, 0] - x
-            dy = positions_m[k, j, 1] - y
-            if period_m[0] < np.inf:
-                dx -= period_m[0] * np.rint(dx / period_m[0])
-            if period_m[1] < np.inf:
-                dy -= period_m[1] * np.rint(dy / period_m[1])
-            if j == i:
-                dx = 0.0
-                dy = 0.0
-            disp_m[k, 0, i, j] = dx
-            disp_m[k, 1, i, j] = dy
-            r2 = dx * dx + dy * dy
-            dist2_m2[k, i, j] = r2
-        for j in range(n):
-            disp_m[k, 0, j, i] = -disp_m[k, 0, i, j]  # -0.0 on the diagonal, as numpy writes it
-            disp_m[k, 1, j, i] = -disp_m[k, 1, i, j]
-            dist2_m2[k, j, i] = dist2_m2[k, i, j]
-        # reward (individual; MobilityEnv._step_rewards)
-        if improvement:
-            reward_out[k] = u - scalars[k, BASE_PREV]
-            scalars[k, BASE_PREV] = u
-        else:
-            reward_out[k] = u
-        if version >= 1:  # MobilityEnv._update_v1_row
-            uu = u if normalise else u / max(count, 1)
-            scalars[k, U_PREV] = scalars[k, U_NOW]
-            scalars[k, U_NOW] = uu
-            if uu > scalars[k, U_BEST]:
-                scalars[k, U_BEST] = uu
+        step.move_geometry(i, pos, period_m, disp_m[k], dist2_m2[k])
+        reward_out[k], scalars[k, BASE_PREV] = step.step_reward(u, scalars[k, BASE_PREV], improvement)
+        if version >= 1:
+            scalars[k, U_PREV], scalars[k, U_NOW], scalars[k, U_BEST], better = step.own_state_update(
+                step.per_receiver(u, count, normalise), scalars[k, U_NOW], scalars[k, U_BEST]
+            )
+            if better:
                 best_m[k, 0] = x
                 best_m[k, 1] = y
-        done = t[k] >= max_cycles
-        done_out[k] = done
+        done_out[k] = t[k] >= max_cycles
         # observation (MobilityEnv._build for the mover, then its own v1 entries)
         for j in range(n):
-            drift[j, 0] = positions_m[k, j, 0] - start_m[k, j, 0]
-            drift[j, 1] = positions_m[k, j, 1] - start_m[k, j, 1]
+            drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
+            drift[j, 1] = pos[j, 1] - start_m[k, j, 1]
         rows[0] = i
         ob = _observation_kernel(
-            disp_m[k], dist2_m2[k], co_table[k], target[k], positions_m[k], drift, t[k] / max_cycles,
+            disp_m[k], dist2_m2[k], co_table[k], target[k], pos, drift, t[k] / max_cycles,
             k_neighbours, scale_m, region_m, interferer_range_m, obs_clip, rows, size, extra, alpha, beta,
             gamma, logistic, model_p_min, p[k],
         )  # fmt: skip
         for f in range(size):
             obs_out[k, f] = ob[0, f]
-        if version >= 1:  # MobilityEnv._own_v1_row
-            now = scalars[k, U_NOW]
-            reach = max(max_cycles - settle_steps - t[k], 0) * max_step_m
-            own = (
-                now,
-                10.0 * (now - scalars[k, U_PREV]),
-                now - scalars[k, U_START],
-                scalars[k, U_BEST] - now,
-                (best_m[k, 0] - x) * inv,
-                (best_m[k, 1] - y) * inv,
-                (plan_m[k, 0] - x) * inv,
-                (plan_m[k, 1] - y) * inv,
-                reach * inv,
-            )
-            for f in range(OWN_V1):
-                obs_out[k, own_v1_offset + f] = min(max(own[f], -obs_clip), obs_clip)
+        if version >= 1:
+            step.own_v1_entries(
+                obs_out[k], own_v1_offset, obs_clip, scale_m, step.reach_m(t[k], max_cycles, settle_steps, max_step_m),
+                scalars[k, U_NOW], scalars[k, U_PREV], scalars[k, U_START], scalars[k, U_BEST], best_m[k, 0],
+                best_m[k, 1], plan_m[k, 0], plan_m[k, 1], x, y,
+            )  # fmt: skip
         info_out[k, 0] = u
         info_out[k, 1] = scalars[k, U0]
         info_out[k, 2] = prr
@@ -354,14 +284,14 @@ class MoverBatch:
         self.co_table[k] = -1
         self.co_table[k, :, : table.shape[1]] = table
         self.target[k] = env.target
-        self.p[k] = env.p
+        self.p[k] = env.link_p
         row = env.links.mover_row(i, env.positions_m)
         args = row._args
         self.los_row[k] = args[3]
         self.gain_row_db[k] = args[4]
         self.level_db[k] = kernels.levels_db(args[7], args[8])
         s = self.scalars[k]
-        s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.u[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
+        s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.utility[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
         s[BASE_PREV] = env._base_prev[i]
         if env.layout.version >= 1:
             s[U_NOW], s[U_PREV], s[U_START], s[U_BEST] = env._u_now[i], env._u_prev[i], env._u_start[i], env._u_best[i]
@@ -414,10 +344,10 @@ class MoverBatch:
         i = int(self.mover[k])
         env.positions_m = self.positions_m[k].copy()
         env.t = int(self.t[k])
-        env.p = self.p[k].copy()
+        env.link_p = self.p[k].copy()
         env._geometry = type(env._geometry)(self.disp_m[k].copy(), self.dist2_m2[k].copy())  # type: ignore[misc]
         s = self.scalars[k]
-        env.u[i], env.prr[i], env.jain[i] = s[U], s[PRR], s[JAIN]
+        env.utility[i], env.prr[i], env.jain[i] = s[U], s[PRR], s[JAIN]
         env._base_prev[i] = s[BASE_PREV]
         if env.layout.version >= 1:
             env._u_now[i], env._u_prev[i], env._u_best[i] = s[U_NOW], s[U_PREV], s[U_BEST]

@@ -19,30 +19,30 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
-from cv2x_marl.checks import is_int, is_real
-from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides
-from cv2x_marl.config import preset as load_preset
-from cv2x_marl.env.observation import OWN_V1, VERSIONS, ObservationLayout, build_observations, co_channel_table
-from cv2x_marl.sim import Simulator, kernels
+from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.env import step as step_core
+from cv2x_marl.env.observation import (
+    ObservationLayout,
+    build_observations,
+    co_channel_table,
+    decode_observations,
+)
+from cv2x_marl.env.options import V1_DEFAULTS, V2_DEFAULTS, EnvOptions
+from cv2x_marl.env.planning import (
+    PLAN_GRID_M,
+    SearchGridError,
+    check_reach_grid,
+    model_plan,
+    reachable_set,
+    sensing_plan,
+)
+from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.road import Road
 
-MODES = ("snapshot", "traffic")
-REWARDS = ("individual", "team", "mixed")
-#: ``utility``: the reward of a step is the utility after it (v0); ``improvement``: its change over
-#: the step, a potential-based shaping whose episode sum is final minus start utility
-REWARD_FORMS = ("utility", "improvement")
-#: ``offset``: the action is the step (times ``max_step_m``); ``plan_residual``: the action is added to
-#: the step towards the observed plan (``clip((plan - position) / max_step_m, -1, 1)``) before clipping
-ACTION_MODES = ("offset", "plan_residual")
-#: traffic mode: ``offset`` (radio position off the road position) or ``speed`` (SUMO speed / lane commands)
-TRAFFIC_ACTIONS = ("offset", "speed")
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
-#: most steps per episode (``max_cycles``): 100 times the default; the reachable square, the tracks and
-#: the run time grow with it (an episode of traffic mode simulates ``max_cycles`` SPS periods)
-MAX_CYCLES = 10_000
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -57,11 +57,6 @@ def check_copies(env: MobilityEnv, copies: int) -> None:
         )
 
 
-def _check(name: str, ok: bool, allowed: str, value: Any) -> None:
-    if not ok:
-        raise ValueError(f"invalid env argument {name}={value!r}; allowed: {allowed}")
-
-
 class MobilityEnv(ParallelEnv):
     """Controlled mobility in a C-V2X Mode 4 network (PettingZoo ParallelEnv).
 
@@ -74,12 +69,12 @@ class MobilityEnv(ParallelEnv):
         mode: ``snapshot`` (positions and SPS resources of a stage-1 snapshot; only the agents'
             offsets move the vehicles) or ``traffic`` (vehicles drive, SPS runs one period per
             step, agents add bounded offsets to their road positions).
-        max_cycles: steps per episode (truncation, all agents together), 1 .. :data:`MAX_CYCLES`.
+        max_cycles: steps per episode (truncation, all agents together), 1 .. :data:`~cv2x_marl.env.options.MAX_CYCLES`.
         max_step_m: offset of a full action (actions are ``Box(-1, 1, (2,))`` times this); at most the
             diagonal of the scene (the road box: 636.4 m for ``paper``, 2000.1 m for ``highway``). With
             observation >= 1 in snapshot mode the plan searches the reachable square (``2 x max_cycles x
             max_step_m`` wide, unless ``max_drift_m`` or ``roi`` bound it) on a 20 m grid, which must fit
-            :data:`~cv2x_marl.policies.optimum.MAX_GRID_POINTS` (``max_step_m`` up to 199.9 m with 100
+            :data:`~cv2x_marl.env.planning.MAX_GRID_POINTS` (``max_step_m`` up to 199.9 m with 100
             steps); larger ones are refused with the figure.
         movers: indices of the vehicles whose actions move them (None: all); the others stay put.
         reward: ``individual`` (own eq. 12 utility), ``team`` (mean over agents) or ``mixed``
@@ -150,91 +145,30 @@ class MobilityEnv(ParallelEnv):
         reset_cache: int = 0,
         traffic_action: str = "offset",
     ) -> None:
-        if isinstance(overrides, str):  # one assignment, not its characters
-            overrides = [overrides]
-        _check(
-            "overrides",
-            isinstance(overrides, Sequence) and all(isinstance(o, str) for o in overrides),
-            "a section.key=value string or a list of them",
-            overrides,
-        )
-        cfg = config if config is not None else apply_overrides(load_preset(preset), overrides)
-        _check("mode", mode in MODES, " | ".join(MODES), mode)
-        _check("reward", reward in REWARDS, " | ".join(REWARDS), reward)
-        _check(
-            "max_cycles",
-            is_int(max_cycles) and 1 <= max_cycles <= MAX_CYCLES,
-            f"integer in [1, {MAX_CYCLES}]",
-            max_cycles,
-        )
-        _check("max_step_m", is_real(max_step_m) and max_step_m > 0, "finite number > 0", max_step_m)
-        _check("local_ratio", is_real(local_ratio) and 0.0 <= local_ratio <= 1.0, "number in [0, 1]", local_ratio)
-        _check("p_min", is_real(p_min) and 0.0 < p_min < 1.0, "number in (0, 1)", p_min)
-        _check("scale_m", is_real(scale_m) and scale_m > 0, "finite number > 0", scale_m)
-        _check(
-            "max_drift_m",
-            max_drift_m is None or (is_real(max_drift_m) and max_drift_m > 0),
-            "null or finite number > 0",
-            max_drift_m,
-        )
-        _check("normalise_reward", isinstance(normalise_reward, bool | np.bool_), "bool", normalise_reward)
-        _check("roi", isinstance(roi, bool | np.bool_), "bool", roi)
-        _check("truth_los", truth_los in ("snapshot", "geometry", "always"), "snapshot | geometry | always", truth_los)
-        _check("render_mode", render_mode in (None, "rgb_array", "human"), "None | rgb_array | human", render_mode)
-        _check("config.link.model", cfg.link.model != "rayleigh", "per_table | threshold", cfg.link.model)
-        _check("observation", observation in VERSIONS and not isinstance(observation, bool), "0 | 1 | 2", observation)
-        _check(
-            "observation",
-            observation < 2 or (cfg.channel.pathloss == "winner_b1" and truth_los != "geometry"),
-            "0 | 1 when channel.pathloss is not winner_b1 or truth_los is geometry (the v2 sensing estimate "
-            "runs on the compiled WINNER+ B1 kernels)",
-            observation,
-        )
-        _check(
-            "privileged",
-            isinstance(privileged, bool) and (observation >= 1 or not privileged),
-            "bool (observation >= 1)",
-            privileged,
-        )
-        _check("reward_form", reward_form in REWARD_FORMS, " | ".join(REWARD_FORMS), reward_form)
-        _check(
-            "action_mode",
-            action_mode in ACTION_MODES and (action_mode == "offset" or (observation >= 1 and mode == "snapshot")),
-            " | ".join(ACTION_MODES) + " (plan_residual: observation >= 1, snapshot mode)",
-            action_mode,
-        )
-        _check(
-            "settle_steps",
-            is_int(settle_steps) and 0 <= settle_steps < max_cycles,
-            "integer in [0, max_cycles)",
-            settle_steps,
-        )
+        opts = EnvOptions(
+            preset=preset, overrides=overrides, config=config, mode=mode, max_cycles=max_cycles,
+            max_step_m=max_step_m, movers=movers, reward=reward, local_ratio=local_ratio,
+            normalise_reward=normalise_reward, p_min=p_min, n_neighbours=n_neighbours, scale_m=scale_m,
+            max_drift_m=max_drift_m, roi=roi, truth_los=truth_los, render_mode=render_mode, observation=observation,
+            privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
+            action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
+        )  # fmt: skip
+        cfg = opts.scenario()
+        road = Road.from_config(cfg.road)
+        box = road.box_m
+        #: [2] the scene's road box (m; a square of the road's length on the highway)
+        self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
+        opts.check_scenario(cfg, float(np.hypot(*self.box_m)), self.box_m)
         if cfg.vehicles.population == "open":
             raise ConfigError(
                 "the env needs vehicles.population=fixed: its agents are the vehicles of the scenario, a fixed set "
                 "per episode (open populations, where vehicles enter and leave, are for the simulator: "
                 "cv2x-marl simulate, docs/mobility.md)"
             )
+        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`)
+        self.options = opts
         self.config = cfg
         self.n = cfg.n_vehicles
-        if n_neighbours is None:
-            n_neighbours = self.n - 1
-        _check(
-            "n_neighbours",
-            is_int(n_neighbours) and 1 <= n_neighbours <= self.n - 1,
-            f"1 .. {self.n - 1}",
-            n_neighbours,
-        )
-        if movers is not None:
-            _check(
-                "movers", not isinstance(movers, str | bytes), f"a list of vehicle indices 0 .. {self.n - 1}", movers
-            )
-            try:
-                movers = list(movers)
-            except TypeError:
-                _check("movers", False, f"a list of vehicle indices 0 .. {self.n - 1}", movers)
-            bad = [m for m in movers if not (is_int(m) and 0 <= m < self.n)]
-            _check("movers", not bad, f"vehicle indices 0 .. {self.n - 1}", movers)
         self.mode = mode
         self.max_cycles = max_cycles
         self.max_step_m = float(max_step_m)
@@ -243,73 +177,49 @@ class MobilityEnv(ParallelEnv):
         self.normalise_reward = normalise_reward
         self.p_min = p_min
         self.max_drift_m = max_drift_m if max_drift_m is not None or mode == "snapshot" else 10.0
+        self._drift_m = np.inf if self.max_drift_m is None else float(self.max_drift_m)  # the kernels' "none"
         self.roi = roi
         self.truth_los = truth_los
         self.render_mode = render_mode
+        self.traffic_action = traffic_action
+        self.reward_form = reward_form
+        self._improvement = reward_form == "improvement"
+        self.replan_every = replan_every
+        self.action_mode = action_mode
+        self.settle_steps = settle_steps
+        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
+        self.reset_cache = int(reset_cache)
         self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
         self.agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.mover_mask = np.ones(self.n, dtype=bool)
         if movers is not None:
             self.mover_mask[:] = False
             self.mover_mask[list(movers)] = True
-        self._step_scale_m = self.max_step_m * self.mover_mask[:, None].astype(np.float64)  # [N, 1]
-        road = Road.from_config(cfg.road)
+        self._step_scale_m = self.max_step_m * self.mover_mask.astype(np.float64)  # [N]: 0 for who stays put
         self._wrap_road = road if cfg.road.wrap_distances else None
+        #: [2] the torus of the pair geometry (inf where distances do not wrap)
+        self.period_m = np.asarray(road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf), dtype=float)
         self._geometry: PairGeometry | None = None
-        box = road.box_m
-        self.box_m = np.array(box if np.isfinite(box[1]) else (box[0], box[0]))
-        scene_m = float(np.hypot(*self.box_m))
-        _check(
-            "max_step_m",
-            self.max_step_m <= scene_m,
-            f"finite number > 0 and <= {scene_m:.1f} (the diagonal of the scene, road box "
-            f"{self.box_m[0]:g} m x {self.box_m[1]:g} m: a larger step leaves it)",
-            max_step_m,
-        )
         self.layout = ObservationLayout(
-            n_neighbours, scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged
-        )
-        _check(
-            "replan_every",
-            replan_every is None or (is_int(replan_every) and replan_every >= 1),
-            "null or an integer >= 1 (observation 2)",
-            replan_every,
-        )
-        _check("replan_every", replan_every is None or observation >= 2, "null unless observation is 2", replan_every)
-        _check(
-            "traffic_action",
-            traffic_action in TRAFFIC_ACTIONS
-            and (traffic_action == "offset" or (mode == "traffic" and cfg.vehicles.mobility == "sumo")),
-            " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=sumo)",
-            traffic_action,
-        )
-        self.traffic_action = traffic_action
-        self.reward_form = reward_form
-        self.replan_every = replan_every
-        self.action_mode = action_mode
-        self.settle_steps = settle_steps
+            self.n - 1 if n_neighbours is None else n_neighbours,
+            scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged,
+        )  # fmt: skip
         self.model_name = model
         self.model: Any = None
         if observation >= 1:
-            from cv2x_marl.experiments.dataset import load_model
+            from cv2x_marl.regression.model import load_model
 
             try:
                 self.model = load_model(Path(model))
             except Exception as exc:
                 raise ValueError(f"invalid env argument model={model!r}: {exc}") from exc
         if self.layout.version >= 1 and mode == "snapshot":  # the plan's search, refused before any reset
-            from cv2x_marl.policies.optimum import PLAN_GRID_M, SearchGridError, check_reach_grid
-
             try:
                 check_reach_grid(self, PLAN_GRID_M, f"observation version {self.layout.version}'s plan")
             except SearchGridError as exc:
                 raise SearchGridError(
                     f"invalid env arguments max_cycles={max_cycles!r}, max_step_m={max_step_m!r}: {exc}"
                 ) from None
-        _check("reset_cache", is_int(reset_cache) and reset_cache >= 0, "an integer >= 0", reset_cache)
-        _check("reset_cache", reset_cache == 0 or mode == "snapshot", "0 unless mode is snapshot", reset_cache)
-        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
-        self.reset_cache = int(reset_cache)
         self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
@@ -361,11 +271,11 @@ class MobilityEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         self._live = set(self.agents)
         self.tracks = [self.positions_m.copy()]
-        self.p, self.target = self._link_success()
+        self.link_p, self.target = self._link_success()
         self._summarise()
-        self.u0 = self.u.copy()
+        self.u0 = self.utility.copy()
         self.prr0 = self.prr.copy()
-        self._base_prev = self._rewards(self.u).copy()
+        self._base_prev = self._rewards(self.utility).copy()
         if self.layout.version >= 1:
             self._reset_v1_state(None if cached is None else cached.plan_m)
         if self.reset_cache and cached is None:
@@ -379,40 +289,38 @@ class MobilityEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset()")
         act = self._decode(actions)
-        clipped: NDArray[np.bool_] = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
-        if self.action_mode == "plan_residual":
-            act = act + self._toward_plan()
-        offsets = np.minimum(np.maximum(act, -1.0), 1.0) * self._step_scale_m
-        if self.t >= self.max_cycles - self.settle_steps:
-            offsets = np.zeros_like(offsets)  # settle phase: vehicles stay where they are
+        settle = self.t >= self.max_cycles - self.settle_steps  # settle phase: vehicles stay where they are
         if self.mode == "snapshot":
-            new = self._bound(self.positions_m + offsets)
-            applied = new - self.positions_m
-            self.positions_m = new
+            plan = self.plan_m if self.action_mode == "plan_residual" else self.positions_m
+            self.positions_m, applied, clipped = step_core.move_vehicles(
+                act, self.positions_m, self.start_m, plan, self._step_scale_m, self.max_step_m,
+                self.action_mode == "plan_residual", settle, self._drift_m, self.roi, self.box_m,
+            )  # fmt: skip
         elif self.traffic_action == "speed":
+            clipped = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
             self._command_sumo(act)
             applied = np.zeros((self.n, 2))
             self.sim.run(self.sim.rri, record=False)
             self.resource = self.sim.resource.copy()
             self.positions_m = self._traffic_positions()
         else:
-            total = self.offsets_m + offsets
-            if self.max_drift_m is not None:
-                norm = np.hypot(total[:, 0], total[:, 1])
-                total *= np.minimum(1.0, self.max_drift_m / np.maximum(norm, 1e-12))[:, None]
-            applied = total - self.offsets_m
-            self.offsets_m = total
+            self.offsets_m, applied, clipped = step_core.traffic_offsets(
+                act, self.offsets_m, self._step_scale_m, settle, self._drift_m
+            )
             self.sim.set_offsets(self.offsets_m)
             self.sim.run(self.sim.rri, record=False)
             self.resource = self.sim.resource.copy()
             self.positions_m = self._traffic_positions()
         self.t += 1
         self.tracks.append(self.positions_m.copy())
-        self.p, self.target = self._link_success()
+        self.link_p, self.target = self._link_success()
         self._summarise()
-        rewards_arr = self._step_rewards()
+        rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
         if self.layout.version >= 1:
-            self._update_v1_state()
+            step_core.own_state_updates(
+                self.utility, self._target_count, self.normalise_reward, self._u_now, self._u_prev, self._u_best,
+                self._best_m, self.positions_m,
+            )  # fmt: skip
             self._maybe_replan()
         done = self.t >= self.max_cycles
         agents = self.agents
@@ -440,9 +348,10 @@ class MobilityEnv(ParallelEnv):
     def step_mover(self, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
         """One step in which only :attr:`fast_mover` moves: its observation, reward, truncation, info.
 
-        What :meth:`step` returns for that vehicle, bit for bit (tested), computed for it alone:
-        its links through :meth:`SnapshotLinks.mover_row` (the interference on them does not change
-        while the others stand still), its row of the pair geometry and its observation. The other
+        What :meth:`step` returns for that vehicle, bit for bit, computed for it alone with the same
+        step functions (:mod:`cv2x_marl.env.step`; the batched copies of :mod:`cv2x_marl.env.batched`
+        call them too): its links through :meth:`SnapshotLinks.mover_row` (the interference on them
+        does not change while the others stand still), its row of the pair geometry and its observation. The other
         vehicles' rewards and observations are not computed, so after this call use only
         ``step_mover`` until the next :meth:`reset` (``SingleMover`` envs do).
         """
@@ -458,38 +367,44 @@ class MobilityEnv(ParallelEnv):
             raise ValueError(f"action of {name} must be numeric with shape (2,), got {action!r}") from None
         if not np.isfinite(act).all():
             raise ValueError(f"action of {name} is not finite: {act.tolist()}")
-        clipped = bool(((act < -1.0) | (act > 1.0)).any())
-        if self.action_mode == "plan_residual":
-            act = act + self._toward_plan()[i]
-        offset = np.minimum(np.maximum(act, -1.0), 1.0) * self.max_step_m
-        if self.t >= self.max_cycles - self.settle_steps:
-            offset = np.zeros(2)
-        old = self.positions_m[i].copy()
-        moved = self.positions_m.copy()
-        moved[i] = old + offset
-        self.positions_m[i] = self._bound(moved)[i]
-        applied = self.positions_m[i] - old
+        clipped = bool(step_core.is_clipped(act[0], act[1]))
+        pos = self.positions_m
+        old_x, old_y = pos[i]
+        plan_x, plan_y = self.plan_m[i] if self.action_mode == "plan_residual" else (old_x, old_y)
+        pos[i] = step_core.move_vehicle(
+            act[0], act[1], old_x, old_y, self.start_m[i, 0], self.start_m[i, 1], plan_x, plan_y,
+            self.max_step_m, self.max_step_m, self.action_mode == "plan_residual",
+            self.t >= self.max_cycles - self.settle_steps, self._drift_m, self.roi, self.box_m[0], self.box_m[1],
+        )  # fmt: skip
         self.t += 1
-        self.tracks.append(self.positions_m.copy())
+        self.tracks.append(pos.copy())
         if self._mover_row is None or self._mover_row.mover != i:
-            self._mover_row = self.links.mover_row(i, self.positions_m)
-        p_row = self._mover_row.success(self.positions_m[i : i + 1])
-        self.p[i] = p_row[0]
-        summary = kernels.link_summaries(p_row, self.target[i : i + 1], self.p_min)
-        self.u[i] = self._normalised(summary[0], self.target[i : i + 1])[0]
-        self.prr[i], self.jain[i] = summary[1, 0], summary[2, 0]
-        self._move_geometry(i)
-        reward = float(self._step_rewards()[i])
+            self._mover_row = self.links.mover_row(i, pos)
+        self.link_p[i] = self._mover_row.success(pos[i : i + 1])[0]
+        u, self.prr[i], self.jain[i], count = step_core.utility_of(
+            self.link_p[i], self.target[i], self.p_min, self.normalise_reward
+        )
+        self.utility[i] = u
+        assert self._geometry is not None
+        step_core.move_geometry(i, pos, self.period_m, self._geometry.disp_m, self._geometry.dist2_m2)
+        reward, self._base_prev[i] = step_core.step_reward(u, self._base_prev[i], self._improvement)
         if self.layout.version >= 1:
-            self._update_v1_row(i)
+            self._u_prev[i], self._u_now[i], self._u_best[i], better = step_core.own_state_update(
+                step_core.per_receiver(u, count, self.normalise_reward), self._u_now[i], self._u_best[i]
+            )
+            if better:
+                self._best_m[i] = pos[i]
             self._maybe_replan()
         done = self.t >= self.max_cycles
-        rows = np.array([i], dtype=np.int64)
-        obs = self._build(rows)
+        obs = self._build(np.array([i], dtype=np.int64))
         if self.layout.version >= 1:
-            lo, clip = self.layout.own_v1_offset, self.layout.obs_clip
-            obs[0, lo : lo + OWN_V1] = np.clip(self._own_v1_row(i), -clip, clip)
-        vals = (self.u[i], self.u0[i], self.prr[i], self.prr0[i], self.jain[i], applied[0], applied[1], clipped)
+            step_core.own_v1_entries(
+                obs[0], self.layout.own_v1_offset, self.layout.obs_clip, self.layout.scale_m, self._reach_m(),
+                self._u_now[i], self._u_prev[i], self._u_start[i], self._u_best[i], self._best_m[i, 0],
+                self._best_m[i, 1], self.plan_m[i, 0], self.plan_m[i, 1], pos[i, 0], pos[i, 1],
+            )  # fmt: skip
+        x, y = pos[i]
+        vals = (u, self.u0[i], self.prr[i], self.prr0[i], self.jain[i], x - old_x, y - old_y, clipped)
         info = dict(zip(INFO_KEYS, (float(v) for v in vals), strict=True))
         if done:
             self.agents = []
@@ -511,24 +426,6 @@ class MobilityEnv(ParallelEnv):
             target[movers] = 0.5 * (a[movers, 0] + 1.0) * self.config.vehicles.speed_max_mps
             lanes[movers] = np.where(a[movers, 1] > 0.5, 1, np.where(a[movers, 1] < -0.5, -1, 0))
         sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0)
-
-    def _toward_plan(self) -> NDArray[np.float64]:
-        """[N, 2] the straight step towards each vehicle's plan as an action (``plan_residual``)."""
-        return np.clip((self.plan_m - self.positions_m) / self.max_step_m, -1.0, 1.0)
-
-    def _move_geometry(self, i: int) -> None:
-        """Update row and column ``i`` of the pair geometry after vehicle ``i`` moved."""
-        assert self._geometry is not None
-        disp, dist2 = self._geometry
-        d = (self.positions_m - self.positions_m[i]).T  # [2, N]: j relative to i
-        if self._wrap_road is not None:
-            self._wrap_road.minimum_image(d.T)
-        d[:, i] = 0.0
-        disp[:, i, :] = d
-        disp[:, :, i] = -d
-        r2 = d[0] * d[0] + d[1] * d[1]
-        dist2[i, :] = r2
-        dist2[:, i] = r2
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
@@ -565,15 +462,6 @@ class MobilityEnv(ParallelEnv):
         act[[self.agent_index[a] for a in actions]] = arr
         return act
 
-    def _bound(self, pos: NDArray[np.float64]) -> NDArray[np.float64]:
-        if self.max_drift_m is not None:
-            d = pos - self.start_m
-            norm = np.hypot(d[:, 0], d[:, 1])
-            pos = self.start_m + d * np.minimum(1.0, self.max_drift_m / np.maximum(norm, 1e-12))[:, None]
-        if self.roi:
-            pos = np.clip(pos, 0.0, self.box_m)
-        return pos
-
     def _traffic_positions(self) -> NDArray[np.float64]:
         from cv2x_marl.sim import mobility
 
@@ -595,16 +483,13 @@ class MobilityEnv(ParallelEnv):
 
     def _utilities(self, p: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
         """[N] eq. 12 utility of each agent's broadcast (per receiver with ``normalise_reward``)."""
-        return self._normalised(kernels.link_summaries(p, target, self.p_min)[0], target)
-
-    def _normalised(self, u: NDArray[np.float64], target: NDArray[np.bool_]) -> NDArray[np.float64]:
-        return u / np.maximum(target.sum(axis=1), 1) if self.normalise_reward else u
+        return step_core.utilities(p, target, self.p_min, self.normalise_reward)[0]
 
     def _summarise(self) -> None:
         """Utility (eq. 12), PRR and Jain's index of every agent from the current links."""
-        summary = kernels.link_summaries(self.p, self.target, self.p_min)
-        self.prr, self.jain = summary[1], summary[2]
-        self.u = self._normalised(summary[0], self.target)
+        self.utility, self.prr, self.jain, self._target_count = step_core.utilities(
+            self.link_p, self.target, self.p_min, self.normalise_reward
+        )
 
     def _rewards(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.reward_kind == "individual":
@@ -614,25 +499,13 @@ class MobilityEnv(ParallelEnv):
             return team
         return self.local_ratio * u + (1.0 - self.local_ratio) * team
 
-    def _step_rewards(self) -> NDArray[np.float64]:
-        """Rewards of the step just taken (``reward`` combination, then ``reward_form``)."""
-        base = self._rewards(self.u)
-        if self.reward_form == "utility":
-            return base
-        out = base - self._base_prev
-        self._base_prev = base.copy()  # base may be self.u, which the one-mover path updates in place
-        return out
-
     # ------------------------------------------------------- observation v1
-    def _per_receiver(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Utilities per target receiver (the scale of the v1 observation), whatever ``normalise_reward``."""
-        return u.copy() if self.normalise_reward else u / np.maximum(self.target.sum(axis=1), 1)
+    def _reach_m(self) -> float:
+        """How far a mover can still go (m): the v1 observation's reach entry, before scaling."""
+        return float(step_core.reach_m(self.t, self.max_cycles, self.settle_steps, self.max_step_m))
 
     def _reset_v1_state(self, cached_plan_m: NDArray[np.float64] | None = None) -> None:
-        from cv2x_marl.policies.optimum import model_plan, reachable_set, sensing_plan
-        from cv2x_marl.policies.scripted import decode_observations
-
-        self._u_now = self._per_receiver(self.u)
+        self._u_now = self.utility.copy() if self.normalise_reward else self.utility / np.maximum(self._target_count, 1)
         self._u_prev = self._u_now.copy()
         self._u_start = self._u_now.copy()
         self._u_best = self._u_now.copy()
@@ -655,65 +528,9 @@ class MobilityEnv(ParallelEnv):
             return
         if self.t >= self.max_cycles - self.settle_steps:
             return
-        from cv2x_marl.policies.optimum import sensing_plan
-
         movers = np.flatnonzero(self.mover_mask)
         if movers.size:
             self.plan_m[movers] = sensing_plan(self, movers)
-
-    def _update_v1_state(self) -> None:
-        self._u_prev = self._u_now
-        self._u_now = self._per_receiver(self.u)
-        better = self._u_now > self._u_best
-        self._u_best = np.where(better, self._u_now, self._u_best)
-        self._best_m[better] = self.positions_m[better]
-
-    def _update_v1_row(self, i: int) -> None:
-        """:meth:`_update_v1_state` for vehicle ``i`` alone (the one-mover path: nobody else changed);
-        the same arithmetic, so the same values."""
-        u = self.u[i] if self.normalise_reward else self.u[i] / max(int(self.target[i].sum()), 1)
-        self._u_prev[i] = self._u_now[i]
-        self._u_now[i] = u
-        if self._u_now[i] > self._u_best[i]:
-            self._u_best[i] = self._u_now[i]
-            self._best_m[i] = self.positions_m[i]
-
-    def _own_v1_row(self, i: int) -> NDArray[np.float64]:
-        """[OWN_V1] :meth:`_own_v1` of vehicle ``i`` alone, with scalar arithmetic (the same values)."""
-        inv = 1.0 / self.layout.scale_m
-        x, y = self.positions_m[i]
-        reach = max(self.max_cycles - self.settle_steps - self.t, 0) * self.max_step_m
-        now, best, plan = self._u_now[i], self._best_m[i], self.plan_m[i]
-        return np.array(
-            [
-                now,
-                10.0 * (now - self._u_prev[i]),
-                now - self._u_start[i],
-                self._u_best[i] - now,
-                (best[0] - x) * inv,
-                (best[1] - y) * inv,
-                (plan[0] - x) * inv,
-                (plan[1] - y) * inv,
-                reach * inv,
-            ]
-        )
-
-    def _own_v1(self, rows: NDArray[np.int64]) -> NDArray[np.float64]:
-        """[A, OWN_V1] the own v1 entries of agents ``rows`` (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`)."""
-        inv = 1.0 / self.layout.scale_m
-        pos = self.positions_m[rows]
-        reach = max(self.max_cycles - self.settle_steps - self.t, 0) * self.max_step_m
-        return np.column_stack(
-            [
-                self._u_now[rows],
-                10.0 * (self._u_now[rows] - self._u_prev[rows]),
-                self._u_now[rows] - self._u_start[rows],
-                self._u_best[rows] - self._u_now[rows],
-                (self._best_m[rows] - pos) * inv,
-                (self.plan_m[rows] - pos) * inv,
-                np.full(rows.size, reach * inv),
-            ]
-        )
 
     def _build(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float32]:
         """[A, size] observations of agents ``rows`` (all when None)."""
@@ -734,20 +551,22 @@ class MobilityEnv(ParallelEnv):
             self._geometry,
             rows,
             self.model,
-            self.p if self.layout.privileged else None,
+            self.link_p if self.layout.privileged else None,
         )
 
     def _observations(self) -> dict[str, NDArray[np.float32]]:
         obs = self._build()
         if self.layout.version >= 1:
-            lo, clip = self.layout.own_v1_offset, self.layout.obs_clip
-            obs[:, lo : lo + OWN_V1] = np.clip(self._own_v1(np.arange(self.n)), -clip, clip)
+            step_core.own_v1_block(
+                obs, self.layout.own_v1_offset, self.layout.obs_clip, self.layout.scale_m, self._reach_m(),
+                self._u_now, self._u_prev, self._u_start, self._u_best, self._best_m, self.plan_m, self.positions_m,
+            )  # fmt: skip
         return dict(zip(self.agents, obs, strict=True))
 
     def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
         """Numeric infos of every agent (all agents are live whenever infos are built)."""
         table = np.stack(
-            (self.u, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped), axis=1
+            (self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped), axis=1
         ).tolist()
         keys = INFO_KEYS
         return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}
@@ -808,10 +627,6 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
-#: what ``cv2x/Mobility-v1`` and ``cv2x/SingleMover-v1`` change from the v0 defaults (any can be overridden)
-V1_DEFAULTS: dict[str, Any] = {"observation": 1, "reward_form": "improvement", "normalise_reward": True}
-
-
 class MobilityEnvV1(MobilityEnv):
     """``cv2x/Mobility-v1``: :class:`MobilityEnv` with :data:`V1_DEFAULTS` (observation version 1,
     improvement rewards per target receiver); keyword arguments as :class:`MobilityEnv`."""
@@ -825,13 +640,6 @@ class MobilityEnvV1(MobilityEnv):
 def mobility_v1(**kwargs: Any) -> MobilityEnv:
     """``cv2x/Mobility-v1`` (:class:`MobilityEnvV1`)."""
     return MobilityEnvV1(**kwargs)
-
-
-#: what ``cv2x/Mobility-v2`` and ``cv2x/SingleMover-v2`` change from the v0 defaults: observation
-#: version 2 (the plan from the mover's sensing estimate), improvement rewards per target receiver
-V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
-#: the defaults of each env version (v0: the constructor's own)
-VERSION_DEFAULTS: dict[str, dict[str, Any]] = {"v0": {}, "v1": V1_DEFAULTS, "v2": V2_DEFAULTS}
 
 
 class MobilityEnvV2(MobilityEnv):

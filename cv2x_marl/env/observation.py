@@ -281,3 +281,42 @@ def build_observations(
         1e-3 if model is None else float(model.p_min),
         np.zeros((1, 1)) if p_true is None else np.ascontiguousarray(p_true, dtype=np.float64),
     )
+
+
+@dataclass(frozen=True)
+class GbmuInputs:
+    """What the mover is allowed to know, for B movers with up to R receivers each.
+
+    Attributes:
+        rx_m: [B, R, 2] receiver positions.
+        l_m: [B, R] distance from each receiver to its main interferer (th_I when NSV = 0).
+        nsv: [B, R] NSV of each receiver.
+        mask: [B, R] which receivers are targets.
+    """
+
+    rx_m: FloatArray
+    l_m: FloatArray
+    nsv: NDArray[np.int64]
+    mask: NDArray[np.bool_]
+
+    def __post_init__(self) -> None:
+        b, r = self.mask.shape
+        if self.rx_m.shape != (b, r, 2) or self.l_m.shape != (b, r) or self.nsv.shape != (b, r):
+            raise ValueError("rx_m must be [B, R, 2] and l_m, nsv, mask [B, R]")
+        if np.any(self.l_m[self.mask] <= 0):
+            raise ValueError("main-interference distances must be > 0 m")
+
+
+def decode_observations(obs: np.ndarray, layout: ObservationLayout) -> GbmuInputs:
+    """GBMU's inputs from stacked observations [B, size]: the mover sits at the origin."""
+    nb = layout.neighbours(np.asarray(obs, dtype=np.float64))  # [B, K, F]
+    rel = nb[..., 0:2] * layout.scale_m
+    int_rel = nb[..., 5:7] * layout.scale_m
+    has = nb[..., 4] > 0.5
+    l_m = np.where(has, np.hypot(*(rel - int_rel).transpose(2, 0, 1)), layout.interferer_range_m)
+    return GbmuInputs(
+        rel.astype(np.float64),
+        np.maximum(l_m, 1e-3).astype(np.float64),
+        np.rint(nb[..., 3]).astype(np.int64),
+        nb[..., 2] > 0.5,
+    )

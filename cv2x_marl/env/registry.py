@@ -63,7 +63,8 @@ def env_version(env_id: str) -> str:
 def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     """The parallel env behind a registered id with its version's defaults (SingleMover: only
     vehicle 0 moves); ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults."""
-    from cv2x_marl.env.mobility_env import VERSION_DEFAULTS, MobilityEnv
+    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.options import VERSION_DEFAULTS
 
     version = env_version(env_id)
     if env_id in SINGLE_MOVER_IDS:

@@ -2,7 +2,7 @@
 
 Vehicle 0 moves; every other vehicle stays where the snapshot put it. Observation, action,
 reward and info are vehicle 0's in :class:`cv2x_marl.env.MobilityEnv` with ``movers=[0]``
-(``-v1``, ``-v2``: with :data:`~cv2x_marl.env.mobility_env.V1_DEFAULTS`, ``V2_DEFAULTS``).
+(``-v1``, ``-v2``: with :data:`~cv2x_marl.env.options.V1_DEFAULTS`, ``V2_DEFAULTS``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.env.mobility_env import VERSION_DEFAULTS, MobilityEnv
+from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.options import VERSION_DEFAULTS
 
 AGENT = "vehicle_0"
 

@@ -25,7 +25,6 @@ from cv2x_marl.regression.model import MODEL_FILE
 
 # re-exported for env/mobility_env.py only (it imports it from here); every other caller imports
 # cv2x_marl.regression.model.load_model; drop this line once mobility_env.py does too
-from cv2x_marl.regression.model import load_model as load_model
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import RunFolder, previous_run_aside, sha256_file
 from cv2x_marl.sim import Simulator

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ConfigError, ScenarioConfig, apply_overrides, show_text, show_value, to_dict
+from cv2x_marl.env.planning import ModelRow, ReachableSet, best_reachable
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.gbmu import (
     ClimbResult,
@@ -38,7 +39,6 @@ from cv2x_marl.policies.gbmu import (
     gbmu_direction,
     oracle_direction,
 )
-from cv2x_marl.policies.optimum import ModelRow, ReachableSet, best_reachable
 from cv2x_marl.regression.model import TwoDistanceModel, load_shipped_model
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import run_folder

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from cv2x_marl.env.observation import GbmuInputs
 from cv2x_marl.regression.model import TwoDistanceModel
 from cv2x_marl.utility import utility_log
 
@@ -47,30 +48,6 @@ FloatArray = NDArray[np.float64]
 LN10 = math.log(10.0)
 #: step-size schedules of GBMU's step 3 (:class:`StepSchedule`)
 SCHEDULES: tuple[str, ...] = ("constant", "decay", "backtracking")
-
-
-@dataclass(frozen=True)
-class GbmuInputs:
-    """What the mover is allowed to know, for B movers with up to R receivers each.
-
-    Attributes:
-        rx_m: [B, R, 2] receiver positions.
-        l_m: [B, R] distance from each receiver to its main interferer (th_I when NSV = 0).
-        nsv: [B, R] NSV of each receiver.
-        mask: [B, R] which receivers are targets.
-    """
-
-    rx_m: FloatArray
-    l_m: FloatArray
-    nsv: NDArray[np.int64]
-    mask: NDArray[np.bool_]
-
-    def __post_init__(self) -> None:
-        b, r = self.mask.shape
-        if self.rx_m.shape != (b, r, 2) or self.l_m.shape != (b, r) or self.nsv.shape != (b, r):
-            raise ValueError("rx_m must be [B, R, 2] and l_m, nsv, mask [B, R]")
-        if np.any(self.l_m[self.mask] <= 0):
-            raise ValueError("main-interference distances must be > 0 m")
 
 
 def gbmu_direction(

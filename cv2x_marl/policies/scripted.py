@@ -11,26 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from cv2x_marl.env.observation import ObservationLayout
+from cv2x_marl.env.observation import ObservationLayout, decode_observations
 from cv2x_marl.policies.base import Actions, Observations
-from cv2x_marl.policies.gbmu import GbmuInputs, SteeringUtility, StepSchedule, armijo_move, gbmu_direction
+from cv2x_marl.policies.gbmu import SteeringUtility, StepSchedule, armijo_move, gbmu_direction
 from cv2x_marl.regression.model import TwoDistanceModel
 from cv2x_marl.sim.kernels import link_summaries
-
-
-def decode_observations(obs: np.ndarray, layout: ObservationLayout) -> GbmuInputs:
-    """GBMU's inputs from stacked observations [B, size]: the mover sits at the origin."""
-    nb = layout.neighbours(np.asarray(obs, dtype=np.float64))  # [B, K, F]
-    rel = nb[..., 0:2] * layout.scale_m
-    int_rel = nb[..., 5:7] * layout.scale_m
-    has = nb[..., 4] > 0.5
-    l_m = np.where(has, np.hypot(*(rel - int_rel).transpose(2, 0, 1)), layout.interferer_range_m)
-    return GbmuInputs(
-        rel.astype(np.float64),
-        np.maximum(l_m, 1e-3).astype(np.float64),
-        np.rint(nb[..., 3]).astype(np.int64),
-        nb[..., 2] > 0.5,
-    )
 
 
 class GbmuPolicy:

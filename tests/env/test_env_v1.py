@@ -14,8 +14,8 @@ from pettingzoo.test.seed_test import parallel_seed_test
 import cv2x_marl  # noqa: F401 - registers the ids
 import cv2x_marl.env as env_module
 from cv2x_marl.env import MobilityEnv
-from cv2x_marl.env.mobility_env import V1_DEFAULTS
 from cv2x_marl.env.observation import OWN_V1_NAMES
+from cv2x_marl.env.options import V1_DEFAULTS
 from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1
 from cv2x_marl.regression import TwoDistanceModel
 
@@ -42,7 +42,7 @@ def _reference_v1(env: MobilityEnv, model: TwoDistanceModel, obs: dict) -> None:
     pos, k, lay = env.positions_m, env.layout.n_neighbours, env.layout
     res = env.resource
     n_target = env.target.sum(axis=1)
-    u_per_rx = np.where(env.target, np.log(np.maximum(env.p, env.p_min)), 0.0).sum(axis=1) / n_target
+    u_per_rx = np.where(env.target, np.log(np.maximum(env.link_p, env.p_min)), 0.0).sum(axis=1) / n_target
     for i, a in enumerate(env.agents):
         o = obs[a]
         d = np.hypot(*(pos - pos[i]).T)
@@ -56,7 +56,7 @@ def _reference_v1(env: MobilityEnv, model: TwoDistanceModel, obs: dict) -> None:
             l_m = min(dj.values()) if nsv else lay.interferer_range_m
             want.append(model.predict(max(d[j], 1.0), l_m, nsv))
         np.testing.assert_allclose(lay.model_success(o), want, rtol=2e-6, atol=1e-7)
-        np.testing.assert_allclose(lay.true_success(o), env.p[i, order], rtol=2e-6, atol=1e-7)
+        np.testing.assert_allclose(lay.true_success(o), env.link_p[i, order], rtol=2e-6, atol=1e-7)
         own = lay.own_v1(o)
         assert own[0] == pytest.approx(u_per_rx[i], rel=1e-5)
         assert own[2] == pytest.approx(u_per_rx[i] - env._u_start[i], abs=1e-5)
@@ -94,7 +94,7 @@ def test_improvement_rewards_sum_to_final_minus_start(reward: str) -> None:
     ref.reset(seed=2)
     rng = np.random.default_rng(0)
     total = np.zeros(env.n)
-    start = ref._rewards(ref.u).copy()
+    start = ref._rewards(ref.utility).copy()
     while env.agents:
         act = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
         r, r_ref = env.step(act)[1], ref.step(act)[1]

@@ -258,7 +258,8 @@ def test_policy_decay_counts_env_steps_since_reset() -> None:
 
 
 def test_policy_backtracking_never_lowers_the_models_prediction() -> None:
-    from cv2x_marl.policies.scripted import GbmuPolicy, decode_observations
+    from cv2x_marl.env.observation import decode_observations
+    from cv2x_marl.policies.scripted import GbmuPolicy
 
     env, obs = _env_and_obs()
     inputs = decode_observations(obs["vehicle_0"][None], env.layout)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env import MobilityEnv
+from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set
 from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.experiments.evaluate import evaluate
-from cv2x_marl.policies.optimum import OptimumPolicy, ReachableSet, best_reachable, reachable_set
+from cv2x_marl.policies.optimum import OptimumPolicy
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
 

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from cv2x_marl.sim.kernels.pathloss import winner_b1_pair_db
 from cv2x_marl.sim.kernels.per import _DB_TO_NEPER, MODEL_PER_TABLE, MODEL_PER_TABLE_LOG, per_success
+from cv2x_marl.utility import eq12_term, link_summary
 
 FloatArray = NDArray[np.float64]
 
@@ -328,7 +329,7 @@ def mover_row_utility(
                     gain_row_db, wb1, range2_m2,
                 )  # fmt: skip
                 x = success_at_level(s_dbm, level_db[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
-                u += math.log(max(x, p_min))
+                u += eq12_term(x, p_min)
         out[m] = u
     return out
 
@@ -342,7 +343,7 @@ def row_utility(p: FloatArray, target_row: NDArray[np.bool_], p_min: float) -> F
         u = 0.0
         for j in range(p.shape[1]):
             if target_row[j]:
-                u += math.log(max(p[m, j], p_min))
+                u += eq12_term(p[m, j], p_min)
         out[m] = u
     return out
 
@@ -355,30 +356,18 @@ def link_summaries(p: FloatArray, target: NDArray[np.bool_], p_min: float) -> Fl
     ``P_ij`` over ``R_i``; row 2: Jain's index ``(sum P)^2 / (|R_i| sum P^2)``. Rows 1 and 2 are 0
     where undefined (no targets, or all P = 0). The same quantities as
     :func:`cv2x_marl.utility.utility_log`, :func:`~cv2x_marl.utility.per_node_prr` and
-    :func:`~cv2x_marl.utility.jain_fairness` (tested equal) in one pass.
+    :func:`~cv2x_marl.utility.jain_fairness` (tested equal) in one pass: each row is
+    :func:`cv2x_marl.utility.link_summary`, eq. 12's one compiled definition.
 
     Args:
         p: [N(tx), N(rx)] link success probabilities.
         target: [N(tx), N(rx)] target receivers ``R_i``.
         p_min: clip of P inside the log.
     """
-    n_tx, n_rx = p.shape
-    out = np.zeros((3, n_tx))
-    for i in range(n_tx):
-        count = 0
-        s1 = 0.0
-        s2 = 0.0
-        u = 0.0
-        for j in range(n_rx):
-            if target[i, j]:
-                x = p[i, j]
-                count += 1
-                s1 += x
-                s2 += x * x
-                u += math.log(max(x, p_min))
+    out = np.zeros((3, p.shape[0]))
+    for i in range(p.shape[0]):
+        u, prr, jain, _count = link_summary(p[i], target[i], p_min)
         out[0, i] = u
-        if count > 0:
-            out[1, i] = s1 / count
-            if s2 > 0.0:
-                out[2, i] = s1 * s1 / (count * s2)
+        out[1, i] = prr
+        out[2, i] = jain
     return out

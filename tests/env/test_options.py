@@ -1,0 +1,62 @@
+"""EnvOptions: the env's options as one schema (docs table current, unknown names refused with the
+allowed ones, version defaults, ranges and choices named in the messages)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cv2x_marl.env.options import (
+    MAX_CYCLES,
+    VERSION_DEFAULTS,
+    EnvOptions,
+    options_markdown,
+)
+from cv2x_marl.sim.evaluate import TRUTH_LOS
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "env.md"
+
+
+def test_docs_table_is_current() -> None:
+    assert options_markdown() in DOC.read_text(), "regenerate with: python -m cv2x_marl.env.options"
+
+
+def test_unknown_names_are_refused_listing_the_allowed_ones() -> None:
+    with pytest.raises(ValueError, match=r"unknown env argument\(s\) max_steps; allowed: preset, overrides"):
+        EnvOptions.from_mapping({"max_steps": 3})
+
+
+def test_version_defaults() -> None:
+    assert EnvOptions.from_mapping({}, "v0").observation == 0
+    v1 = EnvOptions.from_mapping({}, "v1")
+    assert (v1.observation, v1.reward_form, v1.normalise_reward) == (1, "improvement", True)
+    assert EnvOptions.from_mapping({"reward_form": "utility"}, "v2").reward_form == "utility"
+    assert EnvOptions.from_mapping({}, "v2").observation == 2
+    assert set(VERSION_DEFAULTS) == {"v0", "v1", "v2"}
+    with pytest.raises(ValueError, match="unknown env version 'v9'"):
+        EnvOptions.from_mapping({}, "v9")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"max_cycles": MAX_CYCLES + 1}, rf"max_cycles=10001; allowed: integer in \[1, {MAX_CYCLES}\]"),
+        ({"truth_los": "sometimes"}, r"truth_los='sometimes'; allowed: " + r" \| ".join(TRUTH_LOS)),
+        ({"p_min": 1.0}, r"p_min=1.0; allowed: finite number in \(0, 1\)"),
+        ({"max_drift_m": 0.0}, r"max_drift_m=0.0; allowed: null or finite number in \(0, inf\]"),
+        ({"settle_steps": 100}, r"settle_steps=100; allowed: integer in \[0, max_cycles\)"),
+        ({"observation": True}, r"observation=True; allowed: 0 \| 1 \| 2"),
+    ],
+)
+def test_refusals_name_the_argument_and_the_allowed_values(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match="invalid env argument " + message):
+        EnvOptions(**kwargs)
+
+
+def test_python_api_types() -> None:
+    opts = EnvOptions(max_cycles=np.int64(3), roi=np.bool_(True), overrides="sim.warmup_subframes=200")
+    assert opts.max_cycles == 3 and opts.overrides == ("sim.warmup_subframes=200",)
+    with pytest.raises(ValueError, match=r"invalid env argument max_cycles=3\.0"):
+        EnvOptions(max_cycles=3.0)
