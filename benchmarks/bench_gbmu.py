@@ -20,7 +20,7 @@ from cv2x_marl.io import write_json  # noqa: E402
 from cv2x_marl.policies.gbmu import climb, gbmu_direction, oracle_direction  # noqa: E402
 from cv2x_marl.regression import TwoDistanceModel  # noqa: E402
 from cv2x_marl.rng import derive_seeds  # noqa: E402
-from cv2x_marl.sim.evaluate import MoverLinks  # noqa: E402
+from cv2x_marl.sim.ground_truth import MoverLinks  # noqa: E402
 from cv2x_marl.utility import utility_log  # noqa: E402
 
 

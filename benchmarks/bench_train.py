@@ -5,7 +5,7 @@ Both runs use the PPO settings and the number of env copies of the shipped singl
 are measured in the same process in interleaved pairs (ours, Pendulum, ours, ...), so each ratio
 compares the two on the same machine state; reported: the best of each and the median of the
 per-pair ratios (goal of issue 10: ours >= 0.7x Pendulum). Ours goes through the
-:class:`~cv2x_marl.rl.vec_env.AgentsVecEnv` that ``cv2x-marl train`` uses (one-mover fast path);
+:class:`~cv2x_marl.rl.sb3_vec_env.AgentsVecEnv` that ``cv2x-marl train`` uses (one-mover fast path);
 Pendulum through SB3's ``DummyVecEnv``. Also timed alone: the env part of ours (random actions
 through the same VecEnv, resets included). Best of ``--repeats``. Writes ``benchmarks/results/bench_train.json``.
 

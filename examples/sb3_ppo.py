@@ -2,7 +2,7 @@
 
     python examples/sb3_ppo.py [--timesteps 50000] [--seed 0] [--quick]
 
-The adapter (:class:`cv2x_marl.rl.vec_env.AgentsVecEnv`) exposes every mover of every env copy as
+The adapter (:class:`cv2x_marl.rl.sb3_vec_env.AgentsVecEnv`) exposes every mover of every env copy as
 one SB3 sub-env, seeds the copies from PPO's seed and marks time-limit truncation. The mover here is
 the shipped single-mover recipe (``agents/configs/ppo_single_v2_residual.yaml``); it is evaluated
 on held-out episodes (seed 2026, never seen in training) next to GBMU, the plan it starts from and

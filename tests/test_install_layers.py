@@ -44,7 +44,7 @@ def test_both_envs_work_without_the_train_extra() -> None:
         g.step(np.zeros(2, np.float32))
         assert "torch" not in sys.modules and "stable_baselines3" not in sys.modules
         try:
-            import cv2x_marl.rl.vec_env
+            import cv2x_marl.rl.sb3_vec_env
         except ImportError as exc:
             print("ERR", exc)
         from cv2x_marl.cli import main

@@ -2,7 +2,7 @@
 
 A thin layer over the simulator (``cv2x_marl.sim``): it holds no physics. Rewards are the eq. 12
 utility of each agent's broadcast computed with the simulator's link model
-(:class:`cv2x_marl.sim.evaluate.SnapshotLinks` in ``snapshot`` mode, the period's own link
+(:class:`cv2x_marl.sim.ground_truth.SnapshotLinks` in ``snapshot`` mode, the period's own link
 outcomes in ``traffic`` mode), never with the regression model.
 """
 
@@ -37,7 +37,7 @@ from cv2x_marl.env.planning import (
     sensing_plan,
 )
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import PairGeometry, SnapshotLinks, pair_geometry
+from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.road import Road
 
@@ -349,7 +349,7 @@ class MobilityEnv(ParallelEnv):
         """One step in which only :attr:`fast_mover` moves: its observation, reward, truncation, info.
 
         What :meth:`step` returns for that vehicle, bit for bit, computed for it alone with the same
-        step functions (:mod:`cv2x_marl.env.step`; the batched copies of :mod:`cv2x_marl.env.batched`
+        step functions (:mod:`cv2x_marl.env.step`; the batched copies of :mod:`cv2x_marl.env.mover_batch`
         call them too): its links through :meth:`SnapshotLinks.mover_row` (the interference on them
         does not change while the others stand still), its row of the pair geometry and its observation. The other
         vehicles' rewards and observations are not computed, so after this call use only

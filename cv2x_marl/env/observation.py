@@ -25,7 +25,7 @@ values (so the v0 part and GBMU's decoding stay as they are):
 Version 2 (``cv2x/Mobility-v2``, ``cv2x/SingleMover-v2``) has the layout and entries of version 1;
 only the plan (``plan_dx``, ``plan_dy``) changes: it is the best reachable position under the
 mover's own sensing estimate of its links (measured RSRP of its links, the others' positions and
-resources; :meth:`cv2x_marl.sim.evaluate.SnapshotLinks.sensed_row`) instead of the two-distance model.
+resources; :meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.sensed_row`) instead of the two-distance model.
 
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cv2x_marl.sim.evaluate import PairGeometry, pair_geometry, row_index_table
+from cv2x_marl.sim.ground_truth import PairGeometry, pair_geometry, row_index_table
 
 FloatArray = NDArray[np.float64]
 FEATURES = 7
@@ -235,7 +235,7 @@ def build_observations(
         drift_m: [N, 2] displacement from the start of the episode (m).
         t_fraction: elapsed share of the episode.
         co_table: :func:`co_channel_table` of ``resource`` (computed when None).
-        geometry: :func:`cv2x_marl.sim.evaluate.pair_geometry` of ``positions_m`` (computed when
+        geometry: :func:`cv2x_marl.sim.ground_truth.pair_geometry` of ``positions_m`` (computed when
             None; pass the road-folded one on a wrapping road).
         rows: [A] the agents whose observations to build (default: all, in index order).
         model: the :class:`~cv2x_marl.regression.model.TwoDistanceModel` (version 1).

@@ -34,7 +34,7 @@ from cv2x_marl.utility import utility_log
 if TYPE_CHECKING:
     from cv2x_marl.env.observation import GbmuInputs, ObservationLayout
     from cv2x_marl.regression.model import TwoDistanceModel
-    from cv2x_marl.sim.evaluate import SnapshotLinks
+    from cv2x_marl.sim.ground_truth import SnapshotLinks
 
 FloatArray = NDArray[np.float64]
 
@@ -361,7 +361,7 @@ def sensing_plan(
 ) -> FloatArray:
     """[B, 2] each mover's best reachable position under its own sensing estimate (the ``-v2`` plan).
 
-    The estimate is :meth:`cv2x_marl.sim.evaluate.SnapshotLinks.sensed_row`: the mover's links as it
+    The estimate is :meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.sensed_row`: the mover's links as it
     can know them from Mode 4 sensing (RSRP of its own links, positions and resources of the others),
     with the shadowing between other vehicles unknown (0 dB). Each mover is planned alone, the others
     where they are now. Global grid of pitch ``grid_m`` over the :func:`reachable_set`, the ``refine``

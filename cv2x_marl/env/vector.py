@@ -16,8 +16,8 @@ same single-agent envs, and gives the same results bit for bit (``tests/env/test
 * infos: every key of the single env's info (:data:`~cv2x_marl.env.mobility_env.INFO_KEYS`) as an
   array over the copies, with its ``_key`` mask.
 
-Steps go through :class:`~cv2x_marl.env.batched.MoverBatch` (one numba call for all copies) when the
-env options allow it (:func:`~cv2x_marl.env.batched.batch_problem`: no rendering, no
+Steps go through :class:`~cv2x_marl.env.mover_batch.MoverBatch` (one numba call for all copies) when the
+env options allow it (:func:`~cv2x_marl.env.mover_batch.batch_problem`: no rendering, no
 ``replan_every``, WINNER+ B1 links); otherwise through each copy's own ``step`` (the same results,
 a loop over copies), and :attr:`SingleMoverVectorEnv.batched` says which.
 """
@@ -32,8 +32,8 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from cv2x_marl.checks import is_int
-from cv2x_marl.env.batched import MoverBatch, batch_problem, refuse_episode_method
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
+from cv2x_marl.env.mover_batch import MoverBatch, batch_problem, refuse_episode_method
 from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
 
 _MODES = ", ".join(m.value for m in AutoresetMode)

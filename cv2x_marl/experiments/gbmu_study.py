@@ -1,7 +1,7 @@
 """`cv2x-marl gbmu`: the paper's mobility studies (Fig. 5-10) for GBMU, greedy and the oracle.
 
 Every method starts from the same snapshot positions; the true utility and PRR after each move
-come from the simulator's link model (:class:`cv2x_marl.sim.evaluate.MoverLinks`), never from the
+come from the simulator's link model (:class:`cv2x_marl.sim.ground_truth.MoverLinks`), never from the
 regression model that steers GBMU.
 
 Beyond the paper (issue 15), named variants split GBMU's gap to the optimum into the model and the
@@ -43,7 +43,7 @@ from cv2x_marl.regression.model import TwoDistanceModel, load_shipped_model
 from cv2x_marl.rng import derive_seeds
 from cv2x_marl.runs import run_folder
 from cv2x_marl.sim import Simulator, Snapshot
-from cv2x_marl.sim.evaluate import MoverLinks
+from cv2x_marl.sim.ground_truth import MoverLinks
 from cv2x_marl.sim.road import Road
 from cv2x_marl.utility import jain_fairness, normalised_gain, per_node_prr, utility_log
 
@@ -291,7 +291,7 @@ def run_methods(
 
 
 class _SnapshotRow:
-    """The mover of snapshot ``b`` as a :class:`~cv2x_marl.sim.evaluate.MoverRow`-like object for
+    """The mover of snapshot ``b`` as a :class:`~cv2x_marl.sim.ground_truth.MoverRow`-like object for
     :func:`~cv2x_marl.policies.optimum.best_reachable`: the study's own truth utility of M positions."""
 
     def __init__(self, links: MoverLinks, b: int) -> None:

@@ -3,7 +3,7 @@
 A privileged reference (it reads the env's link model, like the oracle), but global where the
 oracle is local: for each mover it searches the whole set of positions the mover can reach in the
 episode for the one with the largest eq. 12 utility, evaluated by the same link computation as the
-env's reward (:meth:`cv2x_marl.sim.evaluate.SnapshotLinks.mover_row`, bit-identical to the reward),
+env's reward (:meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.mover_row`, bit-identical to the reward),
 then drives there in straight steps.
 
 The reachable set, the search and the plans are the env's (:mod:`cv2x_marl.env.planning`).
@@ -28,19 +28,14 @@ response can lower the others' utility through interference, and the rounds need
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.env.observation import decode_observations
 from cv2x_marl.env.planning import (
     PlanningEnv,
     best_reachable,
     check_reach_grid,
-    model_plan,
     reachable_set,
-    sensing_plan,
 )
 from cv2x_marl.policies.base import Actions, Observations
 
@@ -103,65 +98,5 @@ class OptimumPolicy:
         for a in observations:
             i = env.agent_index[a]
             move = (self.targets_m[i] - env.positions_m[i]) / env.max_step_m
-            out[a] = np.clip(move, -1.0, 1.0).astype(np.float32)
-        return out
-
-
-class PlannerPolicy:
-    """Scripted, not privileged: drive straight to the model's best reachable position.
-
-    The position is computed once per episode from the first observation (one-hop information and
-    the two-distance model, like GBMU) by a global search of the model's predicted utility over the
-    reachable set (:func:`model_plan`), instead of GBMU's local gradient steps. It shows how much of
-    GBMU's gap to the optimum is the algorithm (local steps) and how much the model.
-
-    With ``estimator="sensing"`` (``--policy sensing``) the search runs on the mover's sensing
-    estimate instead of the two-distance model (:func:`sensing_plan`): still not privileged (it reads
-    only what a vehicle measures), it shows how much of the rest is the model. In an observation
-    version 2 env it follows the env's plan, which is the same estimate (and is recomputed with
-    ``replan_every``).
-
-    Args:
-        env: the env it acts in (read, never stepped).
-        model: the two-distance model (``estimator="model"``).
-        estimator: ``model`` or ``sensing``.
-    """
-
-    name = "planner"
-
-    def __init__(self, env: PlanningEnv, model: Any, estimator: str = "model") -> None:
-        if estimator not in ("model", "sensing"):
-            raise ValueError(f"invalid planner estimator {estimator!r}; allowed: model, sensing")
-        if estimator == "sensing" and env.mode != "snapshot":
-            raise ValueError("the sensing planner needs the env in snapshot mode")
-        self.env = env
-        self.model = model
-        self.estimator = estimator
-        if estimator == "sensing":
-            self.name = "sensing"
-        self.targets_m: dict[str, FloatArray] = {}
-
-    def reset(self, seed: int | None = None) -> None:
-        self.targets_m = {}
-
-    def act(self, observations: Observations) -> Actions:
-        env = self.env
-        agents = list(observations)
-        if self.estimator == "sensing" and env.layout.version >= 2:
-            # the env's own plan is this estimate (and follows its replanning, ``replan_every``)
-            self.targets_m = {a: env.plan_m[env.agent_index[a]] for a in agents}
-        elif not self.targets_m:
-            idx = [env.agent_index[a] for a in agents]
-            if self.estimator == "sensing":
-                plan = sensing_plan(env, idx)
-            else:
-                v0 = np.stack([observations[a][: env.layout.v0_size] for a in agents])
-                pos = np.asarray(env.positions_m)[idx]
-                reaches = [reachable_set(env, i) for i in idx]
-                plan = model_plan(decode_observations(v0, env.layout), pos, reaches, self.model, env.p_min)
-            self.targets_m = dict(zip(agents, plan, strict=True))
-        out: Actions = {}
-        for a in agents:
-            move = (self.targets_m[a] - env.positions_m[env.agent_index[a]]) / env.max_step_m
             out[a] = np.clip(move, -1.0, 1.0).astype(np.float32)
         return out

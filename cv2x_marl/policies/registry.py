@@ -4,7 +4,7 @@
     gbmu | greedy       :class:`~cv2x_marl.policies.scripted.GbmuPolicy` on a two-distance model
                         (gbmu: the paper's steps 1-5 with its fairness term; greedy: eq. 9 without it)
     oracle              :class:`~cv2x_marl.policies.scripted.OraclePolicy` (the true gradient)
-    planner | sensing   :class:`~cv2x_marl.policies.optimum.PlannerPolicy` (the model's / the sensing
+    planner | sensing   :class:`~cv2x_marl.policies.planner.PlannerPolicy` (the model's / the sensing
                         plan's best reachable position)
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator)
     ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save)
@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.policies.optimum import OptimumPolicy, PlannerPolicy
+from cv2x_marl.policies.optimum import OptimumPolicy
+from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
 from cv2x_marl.regression.model import PAPER_MODEL, load_model

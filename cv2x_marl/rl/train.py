@@ -257,7 +257,7 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
 def make_vec_env(cfg: TrainConfig) -> Any:
     """The agents x copies VecEnv of a training configuration."""
     from cv2x_marl.env.registry import make_parallel_env
-    from cv2x_marl.rl.vec_env import AgentsVecEnv
+    from cv2x_marl.rl.sb3_vec_env import AgentsVecEnv
 
     env = cfg.env_for_training()
     return AgentsVecEnv(lambda: make_parallel_env(cfg.env_id, **env), cfg.copies, start_pool=cfg.start_pool)

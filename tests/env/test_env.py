@@ -18,7 +18,7 @@ from cv2x_marl.experiments.gbmu_study import _snapshots, gbmu_inputs
 from cv2x_marl.policies.gbmu import climb, gbmu_direction
 from cv2x_marl.policies.scripted import GbmuPolicy
 from cv2x_marl.regression import TwoDistanceModel
-from cv2x_marl.sim.evaluate import MoverLinks
+from cv2x_marl.sim.ground_truth import MoverLinks
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
 

@@ -93,7 +93,7 @@ def test_speed_mode_needs_sumo_traffic(tmp_path: Path) -> None:
 
 def test_close_stops_sumo_and_copies_in_one_process_are_refused() -> None:
     from cv2x_marl.env.vector import SingleMoverVectorEnv
-    from cv2x_marl.rl.vec_env import AgentsVecEnv
+    from cv2x_marl.rl.sb3_vec_env import AgentsVecEnv
 
     env = parallel_env(preset="sumo-grid", overrides=SHORT, mode="traffic", max_cycles=3, traffic_action="speed")
     env.reset(seed=1)

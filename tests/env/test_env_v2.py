@@ -18,7 +18,7 @@ from cv2x_marl.env.observation import OWN_V1_NAMES
 from cv2x_marl.env.options import V2_DEFAULTS
 from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set, sensing_plan
 from cv2x_marl.experiments.evaluate import evaluate
-from cv2x_marl.sim.evaluate import SnapshotLinks
+from cv2x_marl.sim.ground_truth import SnapshotLinks
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
 
@@ -119,7 +119,7 @@ def test_reachable_set_on_a_torus_searches_one_period() -> None:
 
 
 def test_plan_residual_zero_action_follows_the_plan_and_corrections_add() -> None:
-    from cv2x_marl.policies.optimum import PlannerPolicy
+    from cv2x_marl.policies.planner import PlannerPolicy
 
     kw = {"movers": [0], "max_cycles": 25, **V2_DEFAULTS, **FAST}
     res = MobilityEnv(action_mode="plan_residual", **kw)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cv2x_marl.env.observation import FEATURES, ObservationLayout, build_observations, co_channel_table
-from cv2x_marl.sim.evaluate import pair_geometry
+from cv2x_marl.sim.ground_truth import pair_geometry
 from cv2x_marl.sim.kernels import link_summaries
 from cv2x_marl.utility import jain_fairness, per_node_prr, utility_log
 

@@ -14,7 +14,7 @@ from cv2x_marl.env.options import (
     EnvOptions,
     options_markdown,
 )
-from cv2x_marl.sim.evaluate import TRUTH_LOS
+from cv2x_marl.sim.ground_truth import TRUTH_LOS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "env.md"
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import cv2x_marl  # noqa: F401 - registers the ids
-from cv2x_marl.env.batched import MoverBatch, batch_problem
 from cv2x_marl.env.mobility_env import INFO_KEYS
+from cv2x_marl.env.mover_batch import MoverBatch, batch_problem
 from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
 from cv2x_marl.env.vector import SingleMoverVectorEnv, SingleMoverVectorEnvV1, SingleMoverVectorEnvV2
 
@@ -236,7 +236,7 @@ def test_make_vec_resolves_in_a_fresh_process() -> None:
 
 
 def test_batched_copies_refuse_what_would_desynchronise_them() -> None:
-    from cv2x_marl.rl.vec_env import AgentsVecEnv
+    from cv2x_marl.rl.sb3_vec_env import AgentsVecEnv
 
     envs = SingleMoverVectorEnv(2, max_cycles=4)
     envs.reset(seed=0)

@@ -10,7 +10,7 @@ from cv2x_marl.experiments.gbmu_study import gbmu_inputs, run_study, seven_node_
 from cv2x_marl.policies.gbmu import GbmuInputs, climb, gbmu_direction, oracle_direction
 from cv2x_marl.regression import TwoDistanceModel
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks
+from cv2x_marl.sim.ground_truth import MoverLinks, SnapshotLinks
 from cv2x_marl.utility import utility_log
 
 PAPER = TwoDistanceModel.paper_table2()

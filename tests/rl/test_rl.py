@@ -11,8 +11,8 @@ from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.sb3_vec_env import AgentsVecEnv
 from cv2x_marl.rl.train import PpoConfig, TrainConfig, latest_checkpoint, load_train_config, parameters_digest, train
-from cv2x_marl.rl.vec_env import AgentsVecEnv
 from cv2x_marl.runs import RunFolderError
 
 FAST_ENV = {"max_cycles": 5, "normalise_reward": True, "overrides": ["sim.warmup_subframes=200"]}

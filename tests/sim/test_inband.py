@@ -14,7 +14,7 @@ import pytest
 
 from cv2x_marl.config import ConfigError, apply_overrides, preset
 from cv2x_marl.sim import Simulator, mobility
-from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks
+from cv2x_marl.sim.ground_truth import MoverLinks, SnapshotLinks
 from cv2x_marl.sim.inband import general_emission_db, leakage_matrix, pool_leakage_weights, rb_emission
 from cv2x_marl.sim.metrics import CAUSE_CODE
 

@@ -59,7 +59,7 @@ def test_unknown_scope_is_refused_by_name() -> None:
 def test_gbmu_inputs_and_env_observations_follow_the_scope() -> None:
     from cv2x_marl.env import MobilityEnv
     from cv2x_marl.experiments.gbmu_study import gbmu_inputs
-    from cv2x_marl.sim.evaluate import MoverLinks
+    from cv2x_marl.sim.ground_truth import MoverLinks
 
     cfg = apply_overrides(preset("paper"), [*BASE, "metrics.nsv_scope=concurrent"])
     th_i = cfg.metrics.interferer_range_m

@@ -105,7 +105,7 @@ def test_unknown_interpolation_is_refused_by_name() -> None:
 def test_env_links_follow_the_configured_interpolation() -> None:
     """The env's ground truth (SnapshotLinks: compiled kernel and numpy reference) and the
     one-mover row use the configured interpolation too, so env rewards agree with the simulator."""
-    from cv2x_marl.sim.evaluate import SnapshotLinks
+    from cv2x_marl.sim.ground_truth import SnapshotLinks
 
     cfg_lin = preset("paper")
     cfg_log = apply_overrides(cfg_lin, ["link.per_interpolation=log"])

@@ -6,9 +6,9 @@ into one compiled pass. They are not a second model. :func:`winner_b1_pair_db` i
 B1 implementation (the simulator calls it through :func:`cv2x_marl.sim.channel.winner_b1_db`) and
 is tested against the numpy LOS / NLOS / free-space formulas of ``channel`` and hand values
 (``tests/sim/test_channel.py``); :func:`snapshot_links` is tested equal (to 1e-9 relative) to the
-numpy composition in :class:`cv2x_marl.sim.evaluate.SnapshotLinks` (``compiled=False``: received
+numpy composition in :class:`cv2x_marl.sim.ground_truth.SnapshotLinks` (``compiled=False``: received
 power, interference sums, PER interpolation) and to the simulator's own link outcomes
-(``tests/sim/test_evaluate.py``). ``NUMBA_DISABLE_JIT=1`` runs them as plain Python for debugging.
+(``tests/sim/test_ground_truth.py``). ``NUMBA_DISABLE_JIT=1`` runs them as plain Python for debugging.
 
 Compiled code is cached on disk (``cache=True``): the first call in a fresh checkout compiles
 (a few seconds), later processes load the cache.

@@ -11,7 +11,7 @@ import pytest
 
 from cv2x_marl.config import from_dict, preset
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.evaluate import MoverLinks, SnapshotLinks, pair_geometry, row_index_table
+from cv2x_marl.sim.ground_truth import MoverLinks, SnapshotLinks, pair_geometry, row_index_table
 from cv2x_marl.sim.road import Road
 
 CASES: dict[str, tuple[str, dict[str, Any], str]] = {

@@ -12,10 +12,10 @@ for SB3, this adapter does explicitly:
   the last state instead of treating the time limit as a terminal state;
 * auto-reset: the copy is reset at once and the first observation of the next episode is returned;
 * one mover per copy (``SingleMover``): all copies step in one compiled call
-  (:class:`cv2x_marl.env.batched.MoverBatch`, the core of the ``vector_entry_point`` env too),
+  (:class:`cv2x_marl.env.mover_batch.MoverBatch`, the core of the ``vector_entry_point`` env too),
   bit-identical to :meth:`MobilityEnv.step_mover` and to the full step (tested) and about 15x
   faster than stepping the copies one by one; where the batch does not apply
-  (:func:`~cv2x_marl.env.batched.batch_problem`, e.g. ``replan_every``), through ``step_mover``.
+  (:func:`~cv2x_marl.env.mover_batch.batch_problem`, e.g. ``replan_every``), through ``step_mover``.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ except ImportError as _exc:  # the train extra is not installed
 
     raise missing_extra("stable_baselines3", "the SB3 adapter (cv2x_marl.rl)", _exc) from _exc
 
-from cv2x_marl.env.batched import BATCH_ATTRIBUTES, MoverBatch, batch_problem, refuse_episode_method
 from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv, check_copies
+from cv2x_marl.env.mover_batch import BATCH_ATTRIBUTES, MoverBatch, batch_problem, refuse_episode_method
 
 
 class AgentsVecEnv(VecEnv):

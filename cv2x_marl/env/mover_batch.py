@@ -16,7 +16,7 @@ copy's env object is not updated (its ``positions_m`` stay at the start): read t
 batch (:attr:`MoverBatch.positions_m`) or call :meth:`MoverBatch.sync` first.
 
 Users get it through :class:`cv2x_marl.env.vector.SingleMoverVectorEnv` (Gymnasium's
-``vector_entry_point``) and :class:`cv2x_marl.rl.vec_env.AgentsVecEnv` (SB3).
+``vector_entry_point``) and :class:`cv2x_marl.rl.sb3_vec_env.AgentsVecEnv` (SB3).
 """
 
 from __future__ import annotations
