@@ -1,5 +1,8 @@
 """Issue 26: re-run the shipped models' held-out tables and compare them with the recorded ones.
 
+It also replays every run of ``tests/data/reference_26/prr.json`` (``cv2x-marl simulate`` of every preset for
+seeds 0, 1 and 2, of which the test suite replays all but the slow SUMO ones), unless ``--no-prr``.
+
 The tables are those of ``docs/results.md`` ("Every method against the optimum"): ``cv2x-marl evaluate``
 on ``cv2x/SingleMover-v2`` (144 held-out episodes, ``--seed 2026``) and ``cv2x/Mobility-v2`` (48 episodes,
 ``--seed 2026``), every scripted policy of the tables and the ten shipped PPO models
@@ -33,10 +36,13 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-REF = ROOT / "tests" / "data" / "reference_26" / "heldout"
+DATA = ROOT / "tests" / "data" / "reference_26"
+REF = DATA / "heldout"
 SEED = "2026"
 #: values of summary.json that measure the machine, not the result
 VOLATILE = ("runtime_s",)
+#: the same for the simulate summaries of prr.json (wall times, versions, the resolved configuration)
+PRR_VOLATILE = ("runtime_s", "total_runtime_s", "versions", "config")
 
 
 def runs() -> dict[str, list[str]]:
@@ -117,10 +123,56 @@ def compare(name: str, new_dir: Path) -> tuple[list[str], float]:
     return problems, worst
 
 
+def _walk(a: object, b: object, where: str, out: list[tuple[str, object, object]]) -> None:
+    if isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys():
+        for k in a:
+            _walk(a[k], b[k], f"{where}.{k}", out)
+    elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _walk(x, y, f"{where}[{i}]", out)
+    elif a != b:
+        out.append((where, a, b))
+
+
+def check_prr() -> tuple[list[str], float]:
+    """Replay every run of prr.json with ``cv2x-marl simulate``; differences and the largest one."""
+    import os
+
+    from cv2x_marl.cli import main as cli_main
+
+    os.environ.setdefault("CV2X_MARL_SUMO_CACHE", tempfile.mkdtemp(prefix="sumo-cache-"))
+    ref = json.loads((DATA / "prr.json").read_text())
+    problems: list[str] = []
+    worst = 0.0
+    with tempfile.TemporaryDirectory(prefix="check_prr_") as tmp:
+        for key, want in ref["runs"].items():
+            preset, seed = key.split("/seed")
+            out = Path(tmp) / f"{preset}-{seed}"
+            t0 = time.perf_counter()
+            cli_main(
+                [
+                    *("simulate", "--preset", preset, "--seed", seed, "--subframes", str(ref["subframes"])),
+                    *("--links", "off", "--out", str(out), "--quiet"),
+                ]
+            )
+            got = json.loads((out / "summary.json").read_text())
+            got = {k: v for k, v in got.items() if k not in PRR_VOLATILE}
+            diffs: list[tuple[str, object, object]] = []
+            _walk(want, got, key, diffs)
+            for where, a, b in diffs:
+                fa, fb = _num(a), _num(b)
+                d = abs(fa - fb) if fa is not None and fb is not None else math.inf
+                worst = max(worst, d)
+                problems.append(f"prr {where} = {b!r}, reference {a!r}")
+            print(f"prr {key}: {'OK' if not diffs else f'{len(diffs)} differences'} ({time.perf_counter() - t0:.1f} s)")
+    return problems, worst
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--record", action="store_true", help="rewrite the references (only on purpose)")
     ap.add_argument("--only", nargs="+", help="names of the runs to do (default: all)")
+    ap.add_argument("--no-prr", action="store_true", help="skip the replay of prr.json")
     a = ap.parse_args(argv)
     table = runs()
     names = a.only or list(table)
@@ -129,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown runs {unknown}; known: {list(table)}")
     all_problems: list[str] = []
     worst = 0.0
+    if not a.record and not a.no_prr and not a.only:
+        all_problems, worst = check_prr()
     walls: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="check_references_") as tmp:
         for name in names:
@@ -139,14 +193,19 @@ def main(argv: list[str] | None = None) -> int:
                 dest.mkdir(parents=True, exist_ok=True)
                 summary = json.loads((out / "summary.json").read_text())
                 (dest / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-                with open(out / "episodes.csv", "rb") as src, gzip.GzipFile(dest / "episodes.csv.gz", "wb", mtime=0) as gz:
+                with (
+                    open(out / "episodes.csv", "rb") as src,
+                    gzip.GzipFile(dest / "episodes.csv.gz", "wb", mtime=0) as gz,
+                ):
                     shutil.copyfileobj(src, gz)
                 print(f"{name}: recorded in {walls[name]:.1f} s", flush=True)
                 continue
             problems, w = compare(name, out)
             worst = max(worst, w)
             all_problems += problems
-            print(f"{name}: {'OK' if not problems else f'{len(problems)} differences'} ({walls[name]:.1f} s)", flush=True)
+            print(
+                f"{name}: {'OK' if not problems else f'{len(problems)} differences'} ({walls[name]:.1f} s)", flush=True
+            )
     if a.record:
         wall_file = REF / "walltimes.json"  # seconds per run on the recording machine (merged with earlier ones)
         old = json.loads(wall_file.read_text()) if wall_file.exists() else {}

@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import test_references as t  # noqa: E402
+import test_references as t
 
 
 def record_env() -> None:

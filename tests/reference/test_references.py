@@ -217,9 +217,13 @@ PRESETS = ("paper", "highway", "highway-legacy", "sumo-grid", "sumo-highway", "s
 SUMO_PRESETS = ("sumo-grid", "sumo-highway", "sumo-grid-trips")
 PRR_SEEDS = (0, 1, 2)
 PRR_SUBFRAMES = 400
+#: the runs the test suite replays: all but seeds 1-2 of the two slow SUMO presets (10-15 s each, their
+#: SUMO warm-up); benchmarks/check_references.py replays every run of prr.json
+PRR_SLOW = ("sumo-highway", "sumo-grid-trips")
+PRR_TESTED = [(p, s) for p in PRESETS for s in PRR_SEEDS if p not in PRR_SLOW or s == 0]
 
 HELDOUT_SEED = "2026"
-HELDOUT_EPISODES = {"single": "3", "multi": "2"}
+HELDOUT_EPISODES = {"single": "3", "multi": "1"}
 
 
 def heldout_runs() -> dict[str, list[str]]:
@@ -366,7 +370,12 @@ def _play_vec(env_id: str, kw: dict[str, Any], seed: int, steps: int, copies: in
             if k.startswith("final_"):  # SameStep: the ended episodes' last observation and info
                 if k == "final_obs":
                     out["final_obs"] = np.stack(
-                        [np.asarray(o) if o is not None else np.full(envs.single_observation_space.shape, np.nan, np.float32) for o in v]
+                        [
+                            np.asarray(o)
+                            if o is not None
+                            else np.full(envs.single_observation_space.shape, np.nan, np.float32)
+                            for o in v
+                        ]
                     )
                 continue
             arr = np.asarray(v)
@@ -406,8 +415,10 @@ def play_env_case(name: str) -> dict[str, np.ndarray]:
 def simulate_summary(preset: str, seed: int, out: Path) -> dict[str, Any]:
     """``cv2x-marl simulate`` of a preset (few subframes, no links file): its summary without wall times."""
     rc = cli_main(
-        ["simulate", "--preset", preset, "--seed", str(seed), "--subframes", str(PRR_SUBFRAMES), "--links", "off"]
-        + ["--out", str(out), "--quiet", "--overwrite"]
+        [
+            *("simulate", "--preset", preset, "--seed", str(seed), "--subframes", str(PRR_SUBFRAMES)),
+            *("--links", "off", "--out", str(out), "--quiet", "--overwrite"),
+        ]
     )
     assert rc in (0, None)
     summary = json.loads((out / "summary.json").read_text())
@@ -464,16 +475,20 @@ def test_env_episode_equals_reference_bit_for_bit(name: str) -> None:
         assert np.array_equal(got[k], ref[k], equal_nan=got[k].dtype.kind == "f"), f"{name}: {k} differs"
 
 
-@pytest.mark.parametrize("preset", PRESETS)
-def test_simulate_prr_of_every_preset_equals_reference(preset: str, tmp_path: Path) -> None:
-    """PRR per node, mean, at distances, per bin, loss causes, SPS state and counts, seeds 0-2: exact."""
+def test_prr_reference_has_every_preset_and_seed() -> None:
+    ref = json.loads((DATA / "prr.json").read_text())
+    assert ref["subframes"] == PRR_SUBFRAMES
+    assert sorted(ref["runs"]) == sorted(f"{p}/seed{s}" for p in PRESETS for s in PRR_SEEDS)
+
+
+@pytest.mark.parametrize(("preset", "seed"), PRR_TESTED)
+def test_simulate_prr_of_preset_equals_reference(preset: str, seed: int, tmp_path: Path) -> None:
+    """PRR per node, mean, at distances, per bin, loss causes, SPS state and counts: exact."""
     if preset in SUMO_PRESETS and not HAVE_SUMO:
         pytest.skip("SUMO is not installed")
     ref = json.loads((DATA / "prr.json").read_text())
-    assert ref["subframes"] == PRR_SUBFRAMES
-    for seed in PRR_SEEDS:
-        got = json.loads(json.dumps(simulate_summary(preset, seed, tmp_path / str(seed))))
-        assert got == ref["runs"][f"{preset}/seed{seed}"], f"{preset} seed {seed}"
+    got = json.loads(json.dumps(simulate_summary(preset, seed, tmp_path / str(seed))))
+    assert got == ref["runs"][f"{preset}/seed{seed}"]
 
 
 def _same_cells(got: dict[str, Any], ref: dict[str, Any]) -> None:
@@ -495,11 +510,11 @@ def test_heldout_table_slice_equals_reference(run: str, tmp_path: Path) -> None:
     _same_cells(got, ref["runs"][run])
 
 
-def test_full_heldout_tables_were_recorded() -> None:
-    """The full tables (benchmarks/check_references.py --record) are on disk, one folder per row."""
+def test_full_heldout_tables_recorded_are_rows_of_the_tables() -> None:
+    """The full tables (benchmarks/check_references.py --record): one folder per row of the tables."""
     folder = DATA / "heldout"
     names = sorted(p.name for p in folder.iterdir() if p.is_dir())
-    assert names == sorted(heldout_runs())
+    assert names and set(names) <= set(heldout_runs())
     for name in names:
         s = json.loads((folder / name / "summary.json").read_text())
         assert s["episodes"] == (144 if name.startswith("single") else 48)
