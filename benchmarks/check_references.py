@@ -96,6 +96,8 @@ def _num(x: object) -> float | None:
 def compare(name: str, new_dir: Path) -> tuple[list[str], float]:
     """Differences between a fresh run and its reference, and the largest absolute numeric difference."""
     ref_dir = REF / name
+    if not (ref_dir / "summary.json").exists():
+        return [f"{name}: no reference recorded in {ref_dir} (record it with --record --only {name})"], 0.0
     problems: list[str] = []
     worst = 0.0
     pairs: list[tuple[str, object, object]] = []
@@ -168,6 +170,14 @@ def check_prr() -> tuple[list[str], float]:
     return problems, worst
 
 
+def _note_wall(name: str, seconds: float) -> None:
+    """Add a run's wall time (s, on the recording machine) to ``heldout/walltimes.json``."""
+    wall_file = REF / "walltimes.json"
+    old = json.loads(wall_file.read_text()) if wall_file.exists() else {}
+    old[name] = round(seconds, 1)
+    wall_file.write_text(json.dumps(old, indent=2) + "\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--record", action="store_true", help="rewrite the references (only on purpose)")
@@ -198,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                     gzip.GzipFile(dest / "episodes.csv.gz", "wb", mtime=0) as gz,
                 ):
                     shutil.copyfileobj(src, gz)
+                _note_wall(name, walls[name])
                 print(f"{name}: recorded in {walls[name]:.1f} s", flush=True)
                 continue
             problems, w = compare(name, out)
@@ -207,10 +218,6 @@ def main(argv: list[str] | None = None) -> int:
                 f"{name}: {'OK' if not problems else f'{len(problems)} differences'} ({walls[name]:.1f} s)", flush=True
             )
     if a.record:
-        wall_file = REF / "walltimes.json"  # seconds per run on the recording machine (merged with earlier ones)
-        old = json.loads(wall_file.read_text()) if wall_file.exists() else {}
-        old.update({k: round(v, 1) for k, v in walls.items()})
-        wall_file.write_text(json.dumps(old, indent=2) + "\n")
         return 0
     for p in all_problems[:50]:
         print(p)
