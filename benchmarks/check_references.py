@@ -18,7 +18,9 @@ Usage (from the repository root)::
 
 Comparison is exact (every numeric cell of ``episodes.csv`` and every value of ``summary.json``): the
 refactor is meant to run the same arithmetic. The largest absolute difference over all runs is printed
-either way. The whole set takes about 25-30 min on the 2-core development machine (one run at a time).
+either way. Wall time: 15 s to 13 min per row on the 2-core development machine while shared with other
+jobs (load about 7; ``heldout/walltimes.json`` has each recorded row's), about 2 h for all rows; most of it is
+``multi-optimum`` and the five ``multi-ppo`` rows. ``--only NAME ...`` runs some rows.
 """
 
 from __future__ import annotations
