@@ -1,0 +1,75 @@
+"""Record the behaviour references of issue 26 into ``tests/data/reference_26/``.
+
+RECORDED AT COMMIT b9b8a2c (the code before the refactor of issue 26). Do NOT rerun this script after
+the refactor, except on purpose (a deliberate change of behaviour, stated in its commit): the point of
+the data is that the refactored code is compared with the code before it.
+
+    PYTHONPATH=$PWD python tests/reference/record.py                 # env trajectories, PRR, held-out slice
+    PYTHONPATH=$PWD python tests/reference/record.py env prr         # some parts only
+    PYTHONPATH=$PWD python benchmarks/check_references.py --record   # the full held-out tables (~30 min)
+
+The cases themselves (env ids, options, seeds, presets, policies) are defined in ``test_references.py``
+next to this file, which replays them; this script only writes what they give.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import test_references as t
+
+
+def record_env() -> None:
+    arrays: dict[str, np.ndarray] = {}
+    for name in t.ENV_CASES:
+        t0 = time.perf_counter()
+        for k, v in t.play_env_case(name).items():
+            arrays[f"{name}/{k}"] = v
+        print(f"env {name}: {time.perf_counter() - t0:.1f} s", flush=True)
+    np.savez_compressed(t.DATA / "env_trajectories.npz", **arrays)
+    (t.DATA / "env_cases.json").write_text(json.dumps(t.ENV_CASES, indent=1) + "\n")
+
+
+def record_prr() -> None:
+    runs = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for preset in t.PRESETS:
+            if preset in t.SUMO_PRESETS and not t.HAVE_SUMO:
+                raise SystemExit("SUMO is needed to record the SUMO presets")
+            for seed in t.PRR_SEEDS:
+                t0 = time.perf_counter()
+                runs[f"{preset}/seed{seed}"] = t.simulate_summary(preset, seed, Path(tmp) / f"{preset}-{seed}")
+                print(f"prr {preset} seed {seed}: {time.perf_counter() - t0:.1f} s", flush=True)
+    doc = {"subframes": t.PRR_SUBFRAMES, "seeds": list(t.PRR_SEEDS), "runs": runs}
+    (t.DATA / "prr.json").write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def record_heldout() -> None:
+    runs = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, args in t.heldout_runs().items():
+            t0 = time.perf_counter()
+            runs[name] = {"args": args, **t.evaluate_run(args, Path(tmp) / name)}
+            print(f"heldout {name}: {time.perf_counter() - t0:.1f} s", flush=True)
+    (t.DATA / "heldout_slice.json").write_text(json.dumps({"runs": runs}, indent=1) + "\n")
+
+
+def main() -> None:
+    parts = sys.argv[1:] or ["env", "prr", "heldout"]
+    t.DATA.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault(t.SUMO_ENV, tempfile.mkdtemp(prefix="sumo-cache-"))
+    for part in parts:
+        {"env": record_env, "prr": record_prr, "heldout": record_heldout}[part]()
+
+
+if __name__ == "__main__":
+    main()
