@@ -79,10 +79,13 @@ def allowed_text(f: dataclasses.Field[Any], tp: type, optional: bool) -> str:
         text = schema.allowed_text(meta)
     elif tp is bool:
         text = "bool"
-    elif tp is int:
-        text = f"integer in {schema.allowed_text(meta)}"
-    elif tp is float:
-        text = f"finite number in {schema.allowed_text(meta)}"
+    elif tp is int or tp is float:
+        kind = "integer" if tp is int else "finite number"
+        lo, hi = meta["lo"], meta["hi"]
+        if hi is None and lo is not None:  # a lower bound only: "> 0", ">= 1"
+            text = f"{kind} {'>' if meta['lo_open'] else '>='} {lo:g}"
+        else:
+            text = f"{kind} in {schema.allowed_text(meta)}"
     else:
         text = tp.__name__
     return f"null or {text}" if optional and not meta["allowed"] else text

@@ -45,7 +45,7 @@ def test_version_defaults() -> None:
         ({"max_cycles": MAX_CYCLES + 1}, rf"max_cycles=10001; allowed: integer in \[1, {MAX_CYCLES}\]"),
         ({"truth_los": "sometimes"}, r"truth_los='sometimes'; allowed: " + r" \| ".join(TRUTH_LOS)),
         ({"p_min": 1.0}, r"p_min=1.0; allowed: finite number in \(0, 1\)"),
-        ({"max_drift_m": 0.0}, r"max_drift_m=0.0; allowed: null or finite number in \(0, inf\]"),
+        ({"max_drift_m": 0.0}, r"max_drift_m=0.0; allowed: null or finite number > 0"),
         ({"settle_steps": 100}, r"settle_steps=100; allowed: integer in \[0, max_cycles\)"),
         ({"observation": True}, r"observation=True; allowed: 0 \| 1 \| 2"),
     ],
