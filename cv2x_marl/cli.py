@@ -13,6 +13,7 @@ from cv2x_marl import runs
 from cv2x_marl.config import (
     PRESET_ALIASES,
     PRESETS,
+    TRUTH_LOS,
     ConfigError,
     ScenarioConfig,
     apply_overrides,
@@ -530,7 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--truth-los",
         default="snapshot",
-        choices=["snapshot", "geometry", "always"],
+        choices=TRUTH_LOS,
         help="LOS state of the mover's links in the ground truth",
     )
     p.add_argument(

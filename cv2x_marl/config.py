@@ -356,6 +356,9 @@ class SpsConfig(Section):
 PER_CURVES: tuple[str, ...] = ("r1-160284-190b-r0.5", "r1-160284-190b-r0.7")
 #: ways of interpolating a PER table between its points (``link.per_interpolation``)
 PER_INTERPOLATIONS: tuple[str, ...] = ("linear", "log")
+#: LOS state of a moved vehicle's links in the links' ground truth (:mod:`cv2x_marl.sim.ground_truth`, the env's
+#: ``truth_los``, ``cv2x-marl gbmu --truth-los``): the snapshot's, from the geometry, or always LOS
+TRUTH_LOS: tuple[str, ...] = ("snapshot", "geometry", "always")
 
 
 @dataclass(frozen=True)

@@ -29,9 +29,8 @@ from numpy.typing import NDArray
 
 from cv2x_marl import schema
 from cv2x_marl.checks import is_int, is_real
-from cv2x_marl.config import ScenarioConfig
+from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
 from cv2x_marl.env.observation import VERSIONS
-from cv2x_marl.sim.ground_truth import TRUTH_LOS
 
 #: ``snapshot``: positions and SPS resources of a stage-1 snapshot; ``traffic``: vehicles drive
 MODES = ("snapshot", "traffic")
@@ -194,7 +193,7 @@ class EnvOptions:
     truth_los: str = _option(
         "snapshot",
         "LOS state of a moved link: the snapshot's, re-derived from the `geometry`, or `always` "
-        "(`cv2x_marl.sim.ground_truth.TRUTH_LOS`)",
+        "(`cv2x_marl.config.TRUTH_LOS`)",
         choices=TRUTH_LOS,
     )
     render_mode: str | None = _option(

@@ -23,14 +23,13 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.config import ScenarioConfig
+from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
 from cv2x_marl.sim import channel, inband, kernels, link
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.snapshot import Snapshot
 from cv2x_marl.units import db_to_linear, noise_power_dbm
 
 FloatArray = NDArray[np.float64]
-TRUTH_LOS = ("snapshot", "geometry", "always")
 
 
 def mean_rx_dbm(

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cv2x_marl.config import TRUTH_LOS
 from cv2x_marl.env.options import (
     MAX_CYCLES,
     VERSION_DEFAULTS,
     EnvOptions,
     options_markdown,
 )
-from cv2x_marl.sim.ground_truth import TRUTH_LOS
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "env.md"
 
