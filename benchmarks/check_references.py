@@ -47,11 +47,12 @@ VOLATILE = ("runtime_s",)
 PRR_VOLATILE = ("runtime_s", "total_runtime_s", "versions", "config")
 
 
-def runs() -> dict[str, list[str]]:
-    """Name -> the ``cv2x-marl evaluate`` arguments of every row of the held-out tables."""
+def runs(single_episodes: str = "144", multi_episodes: str = "48") -> dict[str, list[str]]:
+    """Name -> the ``cv2x-marl evaluate`` arguments of every row of the held-out tables (the test suite's
+    slice, ``tests/reference/test_references.py``, calls it with fewer episodes)."""
     out: dict[str, list[str]] = {}
-    single = ["--env", "cv2x/SingleMover-v2", "--episodes", "144", "--seed", SEED]
-    multi = ["--env", "cv2x/Mobility-v2", "--episodes", "48", "--seed", SEED]
+    single = ["--env", "cv2x/SingleMover-v2", "--episodes", single_episodes, "--seed", SEED]
+    multi = ["--env", "cv2x/Mobility-v2", "--episodes", multi_episodes, "--seed", SEED]
     out["single-optimum"] = [*single, "--policy", "optimum", "--vs-optimum"]
     for p in ("sensing", "planner", "gbmu", "oracle", "greedy", "static", "random"):
         out[f"single-{p}"] = [*single, "--policy", p]

@@ -6,18 +6,8 @@ episode for the one with the largest eq. 12 utility, evaluated by the same link 
 env's reward (:meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.mover_row`, bit-identical to the reward),
 then drives there in straight steps.
 
-The reachable set, the search and the plans are the env's (:mod:`cv2x_marl.env.planning`).
-Reachable set of mover i from its start ``s_i`` with ``T`` steps left: the square
-``|x - s_i|_inf <= T * max_step_m`` (an action moves each axis by at most ``max_step_m``),
-intersected with the drift disc ``|x - s_i| <= max_drift_m`` and the region of interest when the
-env bounds them. The set is convex and contains the straight path to any of its points, so the
-mover reaches its target exactly, whatever the env's bounding does.
-
-Search: a grid of pitch ``grid_m`` over the set (every point evaluated, compiled), then the
-``refine`` best grid points are refined twice on 21 x 21 grids of a tenth of the previous pitch,
-and the start position is always a candidate (so the optimum never loses utility). The search is
-exact up to the grid: a peak narrower than ``grid_m`` can be missed, which the tests bound by
-comparing with a 4x finer brute force.
+The reachable set and the search (a grid over the set, two refinements, the start always a candidate)
+are the env's: :mod:`cv2x_marl.env.planning` describes them.
 
 Several movers (``cv2x/Mobility-*``): coordinate-wise best response. In ``rounds`` rounds, each mover
 in index order moves to its best reachable position given where the others are at that moment

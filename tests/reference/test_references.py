@@ -25,6 +25,7 @@ tests survive a refactor that moves modules. Every comparison is exact (``np.arr
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import math
 import os
@@ -227,20 +228,13 @@ HELDOUT_EPISODES = {"single": "3", "multi": "1"}
 
 
 def heldout_runs() -> dict[str, list[str]]:
-    """The rows of docs/results.md's held-out tables (as benchmarks/check_references.py), on few episodes."""
-    single = ["--env", "cv2x/SingleMover-v2", "--episodes", HELDOUT_EPISODES["single"], "--seed", HELDOUT_SEED]
-    multi = ["--env", "cv2x/Mobility-v2", "--episodes", HELDOUT_EPISODES["multi"], "--seed", HELDOUT_SEED]
-    out = {"single-optimum": [*single, "--policy", "optimum", "--vs-optimum"]}
-    for p in ("sensing", "planner", "gbmu", "oracle", "greedy", "static", "random"):
-        out[f"single-{p}"] = [*single, "--policy", p]
-    for s in range(5):
-        out[f"single-ppo{s}"] = [*single, "--policy", f"ppo:agents/models/single_seed{s}/model.zip"]
-    out["multi-optimum"] = [*multi, "--policy", "optimum", "--vs-optimum"]
-    for p in ("gbmu", "sensing"):
-        out[f"multi-{p}"] = [*multi, "--policy", p, "--replan-every", "50"]
-    for s in range(5):
-        out[f"multi-ppo{s}"] = [*multi, "--policy", f"ppo:agents/models/multi_seed{s}/model.zip"]
-    return out
+    """The rows of docs/results.md's held-out tables (benchmarks/check_references.py's), on few episodes."""
+    spec = importlib.util.spec_from_file_location("check_references", ROOT / "benchmarks" / "check_references.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.SEED == HELDOUT_SEED
+    return dict(module.runs(HELDOUT_EPISODES["single"], HELDOUT_EPISODES["multi"]))
 
 
 # ------------------------------------------------------------------------------------------ playing
