@@ -38,3 +38,18 @@ class RngStreams:
 def derive_seeds(seed: int, n: int) -> list[int]:
     """``n`` independent 32-bit seeds derived from ``seed`` (for independent runs)."""
     return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(int(seed)).spawn(n)]
+
+
+#: the env's own streams of an episode (after the simulator's :data:`STREAM_NAMES`, so they never
+#: change a simulator draw): the shadowing field that follows the movers, the vehicles' measurements
+ENV_STREAM_NAMES: tuple[str, ...] = ("shadow_field", "measurement")
+
+
+def env_stream(seed: int, name: str) -> np.random.Generator:
+    """The env's named stream ``name`` (:data:`ENV_STREAM_NAMES`) of episode seed ``seed``: the child
+    ``SeedSequence(seed, spawn_key=(len(STREAM_NAMES) + k,))``, a sibling of the simulator's streams of
+    the same seed that none of them equals."""
+    if name not in ENV_STREAM_NAMES:
+        raise ValueError(f"unknown env stream {name!r}; allowed: {', '.join(ENV_STREAM_NAMES)}")
+    key = len(STREAM_NAMES) + ENV_STREAM_NAMES.index(name)
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(key,)))
