@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
 from cv2x_marl.sim import channel, inband, kernels, link
 from cv2x_marl.sim.road import Road
+from cv2x_marl.sim.shadow_field import ShadowField
 from cv2x_marl.sim.snapshot import Snapshot
 from cv2x_marl.units import db_to_linear, noise_power_dbm
 
@@ -259,7 +260,12 @@ class SnapshotLinks:
     """
 
     def __init__(
-        self, config: ScenarioConfig, snapshot: Snapshot, truth_los: str = "snapshot", compiled: bool = True
+        self,
+        config: ScenarioConfig,
+        snapshot: Snapshot,
+        truth_los: str = "snapshot",
+        compiled: bool = True,
+        field: ShadowField | None = None,
     ) -> None:
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
@@ -273,6 +279,9 @@ class SnapshotLinks:
         self.n = n
         eye = np.eye(n, dtype=bool)
         self.shadow_db = np.asarray(snapshot.shadowing_db, dtype=np.float64)
+        #: the shadowing that follows the vehicles (:class:`~cv2x_marl.sim.shadow_field.ShadowField`), or
+        #: None: every pair keeps the snapshot's shadowing wherever the vehicles move
+        self.field = field
         self.los = np.asarray(snapshot.los, dtype=bool) if truth_los == "snapshot" else np.ones((n, n), bool)
         res = snapshot.slot * snapshot.n_subchannels + snapshot.subchannel
         same_res = res[:, None] == res[None, :]
@@ -343,7 +352,8 @@ class SnapshotLinks:
             hc, vc = self.road.corridors(positions_m)
             los = Road.corridor_los((hc[:, None], vc[:, None]), (hc[None, :], vc[None, :]))
         pos = np.asarray(positions_m, dtype=np.float64)
-        dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, self.shadow_db)
+        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos)
+        dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, shadow)
         dbm[np.diag_indices(self.n)] = -np.inf
         if self._range2 is not None:
             dbm = np.where(self.geometry(pos).dist2_m2 <= self._range2, dbm, -np.inf)
@@ -362,7 +372,10 @@ class SnapshotLinks:
         if pos.shape != (self.n, 2):
             raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
         if self.compiled:
-            disp, dist2, p = kernels.snapshot_links(pos, *self._kernel_args)
+            args = self._kernel_args
+            if self.field is not None:  # the gains at these positions: EIRP - the field's shadowing
+                args = (*args[:2], np.ascontiguousarray(self.eirp_dbm - self.field.shadow_db(pos)), *args[3:])
+            disp, dist2, p = kernels.snapshot_links(pos, *args)
             return p, PairGeometry(disp, dist2)
         s_dbm = self.rx_dbm(pos)
         interference_mw = self.interference_weight @ 10.0 ** (s_dbm / 10.0)  # [tx, rx]
@@ -393,6 +406,8 @@ class SnapshotLinks:
         """
         if not 0 <= mover < self.n:
             raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
+        if self.field is not None:
+            raise NotImplementedError("mover_row with a shadowing field")
         pos = np.ascontiguousarray(positions_m, dtype=np.float64)
         if pos.shape != (self.n, 2):
             raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")

@@ -1,0 +1,139 @@
+"""Shadowing that follows the vehicles: a spatially correlated field per link, drawn per episode.
+
+The snapshot gives every pair of vehicles one shadowing value ``s0`` (dB, symmetric). When vehicles
+move away from where the snapshot put them, the shadowing of a pair decorrelates with how far each end
+moved, as in the simulator's channel model (TR 36.885 A.1.4; ``channel.shadowing_decorrelation_m``
+``d``: 10 m on the grid, 25 m on the highway):
+
+    rho_ab = exp(-(|x_a - x_a0| + |x_b - x_b0|) / d)
+
+is the correlation between the pair's shadowing at the start positions ``(x_a0, x_b0)`` and at
+``(x_a, x_b)``: exactly the simulator's ``shadowing_correlation=travelled`` rule with the displacement as
+the distance travelled, and for a pair of which one end stands still, the exponential correlation with
+the distance the other moved (what ``pair_distance`` gives for a receiver far away).
+
+The field of a pair is the conditional Gaussian random field with that covariance whose value at the
+start is the snapshot's:
+
+    s_ab(x_a, x_b) = rho_ab * s0_ab + sigma_ab * (G_ab(x_a, x_b) - rho_ab * G_ab(x_a0, x_b0))
+
+with ``G`` a unit-variance field of covariance ``exp(-|dx_a| / d) * exp(-|dx_b| / d)`` (a product of two
+valid covariances) and ``sigma_ab`` the preset's shadowing standard deviation for the pair's LOS state
+at the snapshot (``channel.shadowing_std_db`` / ``shadowing_nlos_std_db``). ``G`` is a sum of ``W``
+random cosines (the spectral method, Shinozuka 1971):
+
+    G(x_a, x_b) = sqrt(2 / W) * sum_w cos(k_aw . (x_a - x_a0) + k_bw . (x_b - x_b0) + phi_w)
+
+with ``phi_w`` uniform on [0, 2 pi) and each wave vector drawn from the spectral density of the 2-D
+exponential covariance, ``S(k) ~ (1 + d^2 |k|^2)^(-3/2)``: a uniform direction and the radius
+``|k| = sqrt((1 - U)^-2 - 1) / d`` (the inverse of the radial CDF ``1 - (1 + d^2 k^2)^(-1/2)``). Then
+``E[G(x) G(x')] = E[cos(k_a . dx_a)] E[cos(k_b . dx_b)] = exp(-|dx_a| / d) exp(-|dx_b| / d)`` exactly
+over the draws; with ``W = 32`` waves the marginal is Gaussian to an excess kurtosis of ``-1.5 / W``.
+Fields are continuous everywhere (no grid, no interpolation), so the reward, the measurements and the
+ceiling's search read one field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.config import ScenarioConfig
+
+FloatArray = NDArray[np.float64]
+
+#: cosines per pair field
+N_WAVES = 32
+
+
+@dataclass(frozen=True)
+class ShadowField:
+    """One episode's shadowing field of every pair of N vehicles (see the module docstring).
+
+    Attributes:
+        start_m: [N, 2] positions where the field equals the snapshot's shadowing (m).
+        shadow0_db: [N, N] the snapshot's shadowing (symmetric, dB).
+        sigma_db: [N, N] standard deviation of each pair's field (dB; symmetric).
+        decorrelation_m: ``d`` of the exponential correlation (m).
+        k_lo: [N, N, W, 2] wave vector of the lower-index end of each pair (rad/m; only ``a < b`` used).
+        k_hi: [N, N, W, 2] wave vector of the higher-index end (rad/m).
+        phase: [N, N, W] phases (rad).
+    """
+
+    start_m: FloatArray
+    shadow0_db: FloatArray
+    sigma_db: FloatArray
+    decorrelation_m: float
+    k_lo: FloatArray
+    k_hi: FloatArray
+    phase: FloatArray
+
+    @classmethod
+    def draw(
+        cls,
+        config: ScenarioConfig,
+        start_m: FloatArray,
+        shadow0_db: FloatArray,
+        los: NDArray[np.bool_],
+        rng: np.random.Generator,
+        n_waves: int = N_WAVES,
+    ) -> ShadowField:
+        """Draw the field of every pair.
+
+        Args:
+            config: the scenario (its ``channel`` section: decorrelation distance, LOS / NLOS std).
+            start_m: [N, 2] the snapshot's positions (m).
+            shadow0_db: [N, N] the snapshot's shadowing (symmetric, dB).
+            los: [N, N] the snapshot's LOS states (the std of each pair's field).
+            rng: the episode's ``shadow_field`` stream (:func:`cv2x_marl.rng.env_stream`).
+            n_waves: cosines per pair.
+        """
+        ch = config.channel
+        n = start_m.shape[0]
+        d = float(ch.shadowing_decorrelation_m)
+        u = rng.random((2, n, n, n_waves))
+        radius = np.sqrt((1.0 - u) ** -2.0 - 1.0) / d  # [2, N, N, W] rad/m
+        angle = rng.random((2, n, n, n_waves)) * (2.0 * np.pi)
+        k = np.stack((radius * np.cos(angle), radius * np.sin(angle)), axis=-1)  # [2, N, N, W, 2]
+        phase = rng.random((n, n, n_waves)) * (2.0 * np.pi)
+        sigma = np.where(los, ch.shadowing_std_db, ch.shadowing_nlos_std_db).astype(np.float64)
+        sigma = np.minimum(sigma, sigma.T)  # symmetric (the snapshot's LOS is)
+        return cls(
+            np.array(start_m, dtype=np.float64),
+            np.array(shadow0_db, dtype=np.float64),
+            sigma,
+            d,
+            np.ascontiguousarray(k[0]),
+            np.ascontiguousarray(k[1]),
+            np.ascontiguousarray(phase),
+        )
+
+    @property
+    def n(self) -> int:
+        """Number of vehicles."""
+        return int(self.start_m.shape[0])
+
+    def shadow_db(self, positions_m: FloatArray) -> FloatArray:
+        """[N, N] shadowing of every pair with the vehicles at ``positions_m`` [N, 2] (dB, symmetric,
+        0 on the diagonal); equal to ``shadow0_db`` at ``start_m``. Numpy reference."""
+        pos = np.asarray(positions_m, dtype=np.float64)
+        n = self.n
+        disp = pos - self.start_m  # [N, 2]
+        moved = np.hypot(disp[:, 0], disp[:, 1])  # [N]
+        # pair (a, b), a < b: the lower index's displacement with k_lo, the higher's with k_hi
+        lo = np.minimum(np.arange(n)[:, None], np.arange(n)[None, :])
+        hi = np.maximum(np.arange(n)[:, None], np.arange(n)[None, :])
+        arg = np.einsum("abwc,abc->abw", self.k_lo, disp[lo]) + np.einsum("abwc,abc->abw", self.k_hi, disp[hi])
+        scale = np.sqrt(2.0 / self.phase.shape[-1])
+        g = scale * np.cos(arg + self.phase).sum(axis=-1)
+        g0 = scale * np.cos(self.phase).sum(axis=-1)
+        # the pair (a, b) uses the draws stored at [min, max]: mirror the upper triangle
+        upper = np.triu(np.ones((n, n), dtype=bool), 1)
+        g = np.where(upper, g, g.T)
+        g0 = np.where(upper, g0, g0.T)
+        rho = np.exp(-(moved[:, None] + moved[None, :]) / self.decorrelation_m)
+        s = rho * self.shadow0_db + self.sigma_db * (g - rho * g0)
+        s[np.diag_indices(n)] = 0.0
+        return s
