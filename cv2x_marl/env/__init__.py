@@ -6,11 +6,13 @@
 
     parallel_env_v1 / env_v1   the same for ``cv2x/Mobility-v1`` (observation version 1, improvement rewards)
     parallel_env_v2 / env_v2   the same for ``cv2x/Mobility-v2`` (observation version 2: the sensing plan)
+    parallel_env_v3 / env_v3   the same for ``cv2x/Mobility-v3`` (plan-free observation version 3, shadowing field)
+    parallel_env_cooperative / env_cooperative   ``cv2x/Cooperative-v0`` (every vehicle moves, team reward)
 
 The ids, the factories and their registration are :mod:`cv2x_marl.env.registry`'s: ``import
-cv2x_marl`` registers ``cv2x/Mobility-v0``, ``-v1`` and ``-v2`` (``pettingzoo.make("parallel", ...)``
+cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0`` (``pettingzoo.make("parallel", ...)``
 and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium envs ``cv2x/SingleMover-v0``
-``-v1`` and ``-v2``. :class:`MobilityEnv` and :class:`ObservationLayout` are imported on first use,
+.. ``-v3``. :class:`MobilityEnv` and :class:`ObservationLayout` are imported on first use,
 so that importing the package (the registry, for the CLI's ``--env`` choices) does not import the
 env itself (about 0.9 s measured).
 """
@@ -20,7 +22,19 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from cv2x_marl.env.registry import env, env_v1, env_v2, parallel_env, parallel_env_v1, parallel_env_v2, raw_env
+from cv2x_marl.env.registry import (
+    env,
+    env_cooperative,
+    env_v1,
+    env_v2,
+    env_v3,
+    parallel_env,
+    parallel_env_cooperative,
+    parallel_env_v1,
+    parallel_env_v2,
+    parallel_env_v3,
+    raw_env,
+)
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -40,10 +54,14 @@ __all__ = [
     "MobilityEnv",
     "ObservationLayout",
     "env",
+    "env_cooperative",
     "env_v1",
     "env_v2",
+    "env_v3",
     "parallel_env",
+    "parallel_env_cooperative",
     "parallel_env_v1",
     "parallel_env_v2",
+    "parallel_env_v3",
     "raw_env",
 ]

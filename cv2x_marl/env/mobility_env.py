@@ -26,8 +26,11 @@ from cv2x_marl.env.observation import (
     build_observations,
     co_channel_table,
     decode_observations,
+    fill_measured,
+    fill_own_v3,
 )
-from cv2x_marl.env.options import V1_DEFAULTS, V2_DEFAULTS, EnvOptions
+from cv2x_marl.env.measurement import Measurements, scaled_rsrp
+from cv2x_marl.env.options import COOPERATIVE_DEFAULTS, V1_DEFAULTS, V2_DEFAULTS, V3_DEFAULTS, EnvOptions
 from cv2x_marl.env.planning import (
     PLAN_GRID_M,
     SearchGridError,
@@ -36,10 +39,12 @@ from cv2x_marl.env.planning import (
     reachable_set,
     sensing_plan,
 )
+from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.road import Road
+from cv2x_marl.sim.shadow_field import ShadowField
 
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
@@ -107,6 +112,10 @@ class MobilityEnv(ParallelEnv):
         action_mode: ``offset`` (the action is the step) or ``plan_residual`` (observation >= 1,
             snapshot mode: the action corrects the straight step towards the observed plan, so a zero
             action follows the plan; residual policy learning, Silver et al. 2018).
+        team_objective: the team part of ``team`` / ``mixed`` rewards: mean ``utility`` or mean ``prr``.
+        shadow_field: shadowing that follows the vehicles (:mod:`cv2x_marl.sim.shadow_field`).
+        sensing_window: observation 3: periods of the RSRP average (:mod:`cv2x_marl.env.measurement`).
+        rsrp_error_db: observation 3: standard deviation of the RSRP report error (dB).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -144,6 +153,10 @@ class MobilityEnv(ParallelEnv):
         replan_every: int | None = None,
         reset_cache: int = 0,
         traffic_action: str = "offset",
+        team_objective: str = "utility",
+        shadow_field: bool = False,
+        sensing_window: int = 10,
+        rsrp_error_db: float = 3.0,
     ) -> None:
         opts = EnvOptions(
             preset=preset, overrides=overrides, config=config, mode=mode, max_cycles=max_cycles,
@@ -152,6 +165,8 @@ class MobilityEnv(ParallelEnv):
             max_drift_m=max_drift_m, roi=roi, truth_los=truth_los, render_mode=render_mode, observation=observation,
             privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
             action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
+            team_objective=team_objective, shadow_field=shadow_field, sensing_window=sensing_window,
+            rsrp_error_db=rsrp_error_db,
         )  # fmt: skip
         cfg = opts.scenario()
         road = Road.from_config(cfg.road)
@@ -171,6 +186,8 @@ class MobilityEnv(ParallelEnv):
         self.n = cfg.n_vehicles
         self.mode = mode
         self.max_cycles = max_cycles
+        #: the horizon in force (steps): ``max_cycles``, or a shorter Gymnasium ``TimeLimit`` (observation 3's time left)
+        self.horizon = max_cycles
         self.max_step_m = float(max_step_m)
         self.reward_kind = reward
         self.local_ratio = local_ratio
@@ -206,7 +223,7 @@ class MobilityEnv(ParallelEnv):
         )  # fmt: skip
         self.model_name = model
         self.model: Any = None
-        if observation >= 1:
+        if observation in (1, 2):
             from cv2x_marl.regression.model import load_model
 
             try:
@@ -224,7 +241,8 @@ class MobilityEnv(ParallelEnv):
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
-        self.state_space = spaces.Box(-clip, clip, (self.n * 6,), np.float32)
+        state_size = self.n * 6 + (2 * self.n * self.n if observation == 3 else 0)
+        self.state_space = spaces.Box(-clip, clip, (state_size,), np.float32)
         self.agents: list[str] = []
         self._fig: Any = None
 
@@ -256,7 +274,11 @@ class MobilityEnv(ParallelEnv):
             self.sim = Simulator(self.config)
             snap = self.sim.reset(self.seed_used)
             if self.mode == "snapshot":
-                self.links = SnapshotLinks(self.config, snap, self.truth_los)
+                field = None
+                if self.options.shadow_field:
+                    rng = env_stream(episode_seed, "shadow_field")
+                    field = ShadowField.draw(self.config, snap.positions_m, snap.shadowing_db, snap.los, rng)
+                self.links = SnapshotLinks(self.config, snap, self.truth_los, field=field)
         else:
             self.sim, snap, self.links = cached.sim, cached.snapshot, cached.links
         self.snapshot = snap
@@ -278,6 +300,11 @@ class MobilityEnv(ParallelEnv):
         self._base_prev = self._rewards(self.utility).copy()
         if self.layout.version >= 1:
             self._reset_v1_state(None if cached is None else cached.plan_m)
+        if self.layout.version == 3:
+            o = self.options
+            rng = env_stream(episode_seed, "measurement")
+            self.measure = Measurements.start(self.links.rx_dbm(self.positions_m), self.link_p, o.sensing_window,
+                                              o.rsrp_error_db, rng)  # fmt: skip
         if self.reset_cache and cached is None:
             _store_start(self, episode_seed)
         obs = self._observations()
@@ -315,6 +342,8 @@ class MobilityEnv(ParallelEnv):
         self.tracks.append(self.positions_m.copy())
         self.link_p, self.target = self._link_success()
         self._summarise()
+        if self.layout.version == 3:  # one more period of sensing at the new positions
+            self.measure.update(self.links.rx_dbm(self.positions_m), self.link_p)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
         if self.layout.version >= 1:
             step_core.own_state_updates(
@@ -340,9 +369,11 @@ class MobilityEnv(ParallelEnv):
     @property
     def fast_mover(self) -> int | None:
         """The vehicle whose step :meth:`step_mover` computes alone, or None when it does not apply
-        (it needs snapshot mode, one mover and the individual reward)."""
+        (it needs snapshot mode, one mover and the individual reward; not yet with observation version 3 or
+        the shadowing field)."""
         movers = np.flatnonzero(self.mover_mask)
         ok = self.mode == "snapshot" and movers.size == 1 and self.reward_kind == "individual"
+        ok = ok and self.layout.version != 3 and not self.options.shadow_field
         return int(movers[0]) if ok else None
 
     def step_mover(self, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
@@ -494,7 +525,7 @@ class MobilityEnv(ParallelEnv):
     def _rewards(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.reward_kind == "individual":
             return u
-        team = np.full_like(u, u.mean())
+        team = np.full_like(u, (u if self.options.team_objective == "utility" else self.prr).mean())
         if self.reward_kind == "team":
             return team
         return self.local_ratio * u + (1.0 - self.local_ratio) * team
@@ -514,9 +545,9 @@ class MobilityEnv(ParallelEnv):
         movers = np.flatnonzero(self.mover_mask)
         if cached_plan_m is not None:  # the start came from the reset cache, with its plan
             self.plan_m = cached_plan_m.copy()
-        elif self.mode == "snapshot" and movers.size and self.layout.version >= 2:
+        elif self.mode == "snapshot" and movers.size and self.layout.version == 2:
             self.plan_m[movers] = sensing_plan(self, movers)
-        elif self.mode == "snapshot" and movers.size:
+        elif self.mode == "snapshot" and movers.size and self.layout.version == 1:
             v0 = self._build(movers)[:, : self.layout.v0_size]
             reaches = [reachable_set(self, int(i)) for i in movers]
             inputs = decode_observations(v0, self.layout)
@@ -556,12 +587,30 @@ class MobilityEnv(ParallelEnv):
 
     def _observations(self) -> dict[str, NDArray[np.float32]]:
         obs = self._build()
-        if self.layout.version >= 1:
+        if self.layout.version == 3:
+            self._fill_v3(obs, np.arange(self.n, dtype=np.int64))
+        elif self.layout.version >= 1:
             step_core.own_v1_block(
                 obs, self.layout.own_v1_offset, self.layout.obs_clip, self.layout.scale_m, self._reach_m(),
                 self._u_now, self._u_prev, self._u_start, self._u_best, self._best_m, self.plan_m, self.positions_m,
             )  # fmt: skip
         return dict(zip(self.agents, obs, strict=True))
+
+    def _fill_v3(self, obs: NDArray[np.float32], rows: NDArray[np.int64]) -> None:
+        """Observation version 3's measured and own entries of agents ``rows`` (into ``obs`` [A, size])."""
+        assert self._co_table is not None and self._geometry is not None
+        m, cfg = self.measure, self.config
+        slot, sub = np.divmod(self.resource, cfg.sps.n_subchannels)
+        fill_measured(
+            obs, self.layout, self._geometry, self._co_table, scaled_rsrp(m.rsrp_dbm), m.age / m.window,
+            slot / cfg.traffic.rri_ms, sub / cfg.sps.n_subchannels, rows,
+        )  # fmt: skip
+        left = max(self.horizon - self.t, 0)
+        moving = max(min(self.horizon, self.max_cycles - self.settle_steps) - self.t, 0)
+        fill_own_v3(
+            obs, self.layout, self._u_now[rows], self._u_prev[rows], (self.positions_m - self.start_m)[rows],
+            left / self.horizon, moving * self.max_step_m,
+        )  # fmt: skip
 
     def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
         """Numeric infos of every agent (all agents are live whenever infos are built)."""
@@ -573,20 +622,23 @@ class MobilityEnv(ParallelEnv):
 
     # ----------------------------------------------------------- state / draw
     def state(self) -> NDArray[np.float32]:
-        """Global state for centralised critics: positions, drifts, slot and subchannel of every vehicle."""
+        """Global state for centralised critics: positions / region, drifts / scale, slot / RRI and subchannel /
+        n_subchannels of every vehicle [6N] (observation version 3: then every vehicle's RSRP reports,
+        scaled as in the observation, and their ages / window, [N(tx) x N(rx)] each, row-major)."""
         if not hasattr(self, "positions_m"):
             raise RuntimeError("state() called before reset(): call reset() first")
         region = self.layout.region_m
         slot = self.resource // self.config.sps.n_subchannels
         sub = self.resource % self.config.sps.n_subchannels
-        s = np.concatenate(
-            [
-                (self.positions_m / region).ravel(),
-                ((self.positions_m - self.start_m) / self.layout.scale_m).ravel(),
-                slot / self.config.traffic.rri_ms,
-                sub / self.config.sps.n_subchannels,
-            ]
-        )
+        parts = [
+            (self.positions_m / region).ravel(),
+            ((self.positions_m - self.start_m) / self.layout.scale_m).ravel(),
+            slot / self.config.traffic.rri_ms,
+            sub / self.config.sps.n_subchannels,
+        ]
+        if self.layout.version == 3:  # every vehicle's measurements [tx, rx], as in the observations
+            parts += [scaled_rsrp(self.measure.rsrp_dbm).ravel(), (self.measure.age / self.measure.window).ravel()]
+        s = np.concatenate(parts)
         return np.clip(s, -self.layout.obs_clip, self.layout.obs_clip).astype(np.float32)
 
     def render(self, mode: str | None = None) -> NDArray[np.uint8] | None:
@@ -657,6 +709,26 @@ def mobility_v2(**kwargs: Any) -> MobilityEnv:
     return MobilityEnvV2(**kwargs)
 
 
+class MobilityEnvV3(MobilityEnv):
+    """``cv2x/Mobility-v3``: :class:`MobilityEnv` with :data:`V3_DEFAULTS` (plan-free observation version 3,
+    shadowing that follows the vehicles); keyword arguments as :class:`MobilityEnv`."""
+
+    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v3"}
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**{**V3_DEFAULTS, **kwargs})
+
+
+class CooperativeEnv(MobilityEnv):
+    """``cv2x/Cooperative-v0``: every vehicle moves for the team objective (:data:`COOPERATIVE_DEFAULTS`:
+    v3 with ``reward="team"``); keyword arguments as :class:`MobilityEnv`."""
+
+    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_cooperative_v0"}
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**{**COOPERATIVE_DEFAULTS, **kwargs})
+
+
 @dataclass(frozen=True)
 class _Start:
     """What :meth:`MobilityEnv.reset` computes for an episode seed that is worth keeping: the
@@ -677,7 +749,8 @@ def _start_key(env: MobilityEnv, seed: int) -> tuple[Any, ...]:
     """Everything a start depends on: the scenario, the link truth and what the plan reads
     (observation version, movers, reach, p_min, the model), and the seed."""
     movers = tuple(int(i) for i in np.flatnonzero(env.mover_mask))
-    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min)
+    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min,
+             env.options.shadow_field)  # fmt: skip
     return (repr(env.config), env.truth_los, env.mode, repr(env.layout), env.model_name, movers, reach, int(seed))
 
 

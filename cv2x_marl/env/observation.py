@@ -27,6 +27,27 @@ only the plan (``plan_dx``, ``plan_dy``) changes: it is the best reachable posit
 mover's own sensing estimate of its links (measured RSRP of its links, the others' positions and
 resources; :meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.sensed_row`) instead of the two-distance model.
 
+Version 3 (``cv2x/Mobility-v3``, ``cv2x/SingleMover-v3``, ``cv2x/Cooperative-v0``) is plan-free: no plan,
+no model prediction, no true P. After the v0 block (unchanged, so GBMU's decoding stays as it is) come
+``F3 = 10`` measured values per neighbour k (the same neighbour, nearest first, as the v0 block's k):
+
+    [7K + 5 + 10k + 0]      RSRP of the link from j measured at i (:mod:`cv2x_marl.env.measurement`:
+                            averaged over the sensing window, fast fading and report error included),
+                            scaled ``(rsrp_dbm + 100) / 20``; 0 when never heard
+    [7K + 5 + 10k + 1]      age of that measurement: periods since j's last decoded packet / window
+    [7K + 5 + 10k + 2]      j's subframe (from its SCI) / RRI (ms)
+    [7K + 5 + 10k + 3]      j's subchannel / n_subchannels
+    [7K + 5 + 10k + 4, 5]   position relative to i of the co-channel vehicle (on i's resource, as the
+                            v0 NSV; not i, not j) nearest to j (0, 0 when none)
+    [7K + 5 + 10k + 6]      1 if that vehicle exists
+    [7K + 5 + 10k + 7, 8]   the same for the second nearest
+    [7K + 5 + 10k + 9]      1 if that vehicle exists
+
+then ``OWN_V3 = 6`` own values (:data:`OWN_V3_NAMES`): the utility per target receiver (as v1's
+``utility``), its change over the last step x 10, the drift from the start (x, y, in ``scale_m``), the
+time left (steps left / the horizon in force: ``max_cycles`` or a shorter Gymnasium ``TimeLimit``) and
+the reach left (moving steps left x ``max_step_m`` / ``scale_m``). Every entry is refreshed every step.
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
@@ -59,7 +80,12 @@ OWN_V1_NAMES = (
     "reach",  # steps left x max_step_m: how far the mover can still go
 )
 OWN_V1 = len(OWN_V1_NAMES)
-VERSIONS = (0, 1, 2)
+#: measured values per neighbour of observation version 3 (module docstring)
+FEATURES_V3 = 10
+#: the own entries of observation version 3, in order
+OWN_V3_NAMES = ("utility", "utility_change_x10", "drift_x", "drift_y", "time_left", "reach")
+OWN_V3 = len(OWN_V3_NAMES)
+VERSIONS = (0, 1, 2, 3)
 
 
 @dataclass(frozen=True)
@@ -76,8 +102,16 @@ class ObservationLayout:
 
     @property
     def per_neighbour_extra(self) -> int:
-        """Values per neighbour after the v0 block: model P (v1), true P (v1, privileged)."""
+        """Values per neighbour after the v0 block: model P (v1), true P (v1, privileged); the
+        :data:`FEATURES_V3` measured values (v3)."""
+        if self.version == 3:
+            return FEATURES_V3
         return 0 if self.version == 0 else 1 + int(self.privileged)
+
+    @property
+    def model_extra(self) -> int:
+        """Per-neighbour model / truth values the compiled kernel writes (versions 1 and 2)."""
+        return self.per_neighbour_extra if self.version in (1, 2) else 0
 
     @property
     def v0_size(self) -> int:
@@ -90,11 +124,25 @@ class ObservationLayout:
 
     @property
     def size(self) -> int:
-        return self.own_v1_offset + (OWN_V1 if self.version >= 1 else 0)
+        own = {0: 0, 3: OWN_V3}.get(self.version, OWN_V1)
+        return self.own_v1_offset + own
+
+    def measured(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., K, FEATURES_V3] view of the measured per-neighbour block (version 3)."""
+        if self.version != 3:
+            raise ValueError("measured neighbour entries are part of observation version 3")
+        k0, k = self.v0_size, self.n_neighbours
+        return obs[..., k0 : k0 + k * FEATURES_V3].reshape(*obs.shape[:-1], k, FEATURES_V3)
+
+    def own_v3(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., OWN_V3] the own entries of version 3 (:data:`OWN_V3_NAMES`)."""
+        if self.version != 3:
+            raise ValueError("OWN_V3 entries are part of observation version 3")
+        return obs[..., self.own_v1_offset : self.own_v1_offset + OWN_V3]
 
     def model_success(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., K] the model-predicted success of each neighbour link (version 1)."""
-        if self.version < 1:
+        if self.version not in (1, 2):
             raise ValueError("model-predicted success is part of observation version 1")
         k0 = self.v0_size
         return obs[..., k0 : k0 + self.n_neighbours]
@@ -108,6 +156,8 @@ class ObservationLayout:
 
     def own_v1(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., OWN_V1] the own entries of version 1 (:data:`OWN_V1_NAMES`)."""
+        if self.version not in (1, 2):
+            raise ValueError("OWN_V1 entries are part of observation versions 1 and 2")
         return obs[..., self.own_v1_offset : self.own_v1_offset + OWN_V1]
 
     def neighbours(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
@@ -252,7 +302,7 @@ def build_observations(
         raise ValueError(f"geometry, target and co_table must describe the same {n} vehicles as positions_m")
     if rows is None:
         rows = np.arange(n, dtype=np.int64)
-    extra = layout.per_neighbour_extra
+    extra = layout.model_extra
     if extra and model is None:
         raise ValueError("observation version 1 needs the two-distance model (model=...)")
     if extra > 1 and (p_true is None or p_true.shape != (n, n)):
@@ -320,3 +370,128 @@ def decode_observations(obs: np.ndarray, layout: ObservationLayout) -> GbmuInput
         np.rint(nb[..., 3]).astype(np.int64),
         nb[..., 2] > 0.5,
     )
+
+
+@njit(cache=True)
+def _measured_kernel(
+    out: NDArray[np.float32],
+    disp_m: FloatArray,
+    dist2_m2: FloatArray,
+    co_table: NDArray[np.int64],
+    rsrp: FloatArray,
+    age: FloatArray,
+    slot_frac: FloatArray,
+    sub_frac: FloatArray,
+    rows: NDArray[np.int64],
+    k: int,
+    offset: int,
+    scale_m: float,
+    obs_clip: float,
+) -> None:
+    n = dist2_m2.shape[0]
+    inv = 1.0 / scale_m
+    g_max = co_table.shape[1]
+    dist_i = np.empty(n)
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        for j in range(n):
+            dist_i[j] = math.sqrt(dist2_m2[i, j])
+        dist_i[i] = np.inf
+        order = np.argsort(dist_i, kind="mergesort")  # the v0 block's order (same sort, same keys)
+        for kk in range(k):
+            j = order[kk]
+            base = offset + kk * FEATURES_V3
+            out[r, base + 0] = rsrp[j, i]
+            out[r, base + 1] = age[j, i]
+            out[r, base + 2] = slot_frac[j]
+            out[r, base + 3] = sub_frac[j]
+            first, second = -1, -1
+            d_first, d_second = np.inf, np.inf
+            for g in range(g_max):
+                c = co_table[i, g]
+                if c < 0:
+                    break
+                if c == j:
+                    continue
+                d = dist2_m2[j, c]
+                if d < d_first:
+                    second, d_second = first, d_first
+                    first, d_first = c, d
+                elif d < d_second:
+                    second, d_second = c, d
+            if first >= 0:
+                out[r, base + 4] = disp_m[0, i, first] * inv
+                out[r, base + 5] = disp_m[1, i, first] * inv
+                out[r, base + 6] = 1.0
+            if second >= 0:
+                out[r, base + 7] = disp_m[0, i, second] * inv
+                out[r, base + 8] = disp_m[1, i, second] * inv
+                out[r, base + 9] = 1.0
+            for f in range(FEATURES_V3):
+                out[r, base + f] = min(max(out[r, base + f], -obs_clip), obs_clip)
+
+
+def fill_measured(
+    obs: NDArray[np.float32],
+    layout: ObservationLayout,
+    geometry: PairGeometry,
+    co_table: NDArray[np.int64],
+    rsrp_scaled: FloatArray,
+    age_scaled: FloatArray,
+    slot_frac: FloatArray,
+    sub_frac: FloatArray,
+    rows: NDArray[np.int64],
+) -> None:
+    """Write the measured per-neighbour entries of observation version 3 into ``obs`` [A, size] in place.
+
+    Args:
+        obs: [A, layout.size] observations of agents ``rows`` (the v0 block already built).
+        geometry: the pair geometry the v0 block used (same neighbour order).
+        co_table: :func:`co_channel_table` of the resources (the v0 block's).
+        rsrp_scaled: [N(tx), N(rx)] scaled RSRP reports (:func:`cv2x_marl.env.measurement.scaled_rsrp`).
+        age_scaled: [N(tx), N(rx)] report ages / window.
+        slot_frac: [N] subframe / RRI of each vehicle.
+        sub_frac: [N] subchannel / n_subchannels of each vehicle.
+        rows: [A] the agents of ``obs``'s rows.
+    """
+    if layout.version != 3:
+        raise ValueError("measured entries are part of observation version 3")
+    _measured_kernel(
+        obs, geometry.disp_m, geometry.dist2_m2, co_table,
+        np.ascontiguousarray(rsrp_scaled, dtype=np.float64), np.ascontiguousarray(age_scaled, dtype=np.float64),
+        np.ascontiguousarray(slot_frac, dtype=np.float64), np.ascontiguousarray(sub_frac, dtype=np.float64),
+        np.ascontiguousarray(rows, dtype=np.int64), layout.n_neighbours, layout.v0_size, layout.scale_m,
+        layout.obs_clip,
+    )  # fmt: skip
+
+
+def fill_own_v3(
+    obs: NDArray[np.float32],
+    layout: ObservationLayout,
+    u_now: FloatArray,
+    u_prev: FloatArray,
+    drift_m: FloatArray,
+    time_left: float,
+    reach_m: float,
+) -> None:
+    """Write the own entries of observation version 3 (:data:`OWN_V3_NAMES`) in place.
+
+    Args:
+        obs: [A, layout.size] observations.
+        u_now: [A] utility per target receiver now; u_prev: [A] the step before.
+        drift_m: [A, 2] displacement from the start (m).
+        time_left: steps left / horizon.
+        reach_m: moving steps left x ``max_step_m`` (m).
+    """
+    o = layout.own_v1_offset
+    vals = np.column_stack(
+        (
+            u_now,
+            10.0 * (u_now - u_prev),
+            drift_m[:, 0] / layout.scale_m,
+            drift_m[:, 1] / layout.scale_m,
+            np.full(len(u_now), time_left),
+            np.full(len(u_now), reach_m / layout.scale_m),
+        )
+    )
+    obs[:, o : o + OWN_V3] = np.clip(vals, -layout.obs_clip, layout.obs_clip)

@@ -44,6 +44,14 @@ REWARD_FORMS = ("utility", "improvement")
 ACTION_MODES = ("offset", "plan_residual")
 #: traffic mode: ``offset`` (radio position off the road position) or ``speed`` (SUMO speed / lane commands)
 TRAFFIC_ACTIONS = ("offset", "speed")
+#: the team part of ``team`` / ``mixed`` rewards: the mean eq. 12 utility or the network mean PRR
+TEAM_OBJECTIVES = ("utility", "prr")
+#: the sensing window of TS 36.213 clause 14.1.1.6 (1000 ms) in 100-ms periods
+SENSING_WINDOW = 10
+#: standard deviation (dB) of the RSRP measurement error: the +-6 dB absolute RSRP accuracy of TS 36.133
+#: (clause 9.1.2.1, normal conditions; the sidelink S-RSRP / PSSCH-RSRP requirements state the same bound)
+#: read as a two-sigma (95 %) bound of a Gaussian error: 6 / 2 = 3 dB
+RSRP_ERROR_DB = 3.0
 #: render modes (None: no rendering)
 RENDER_MODES = ("rgb_array", "human")
 #: most steps per episode (``max_cycles``): 100 times the default; the reachable square, the tracks and
@@ -55,8 +63,19 @@ V1_DEFAULTS: dict[str, Any] = {"observation": 1, "reward_form": "improvement", "
 #: what ``cv2x/Mobility-v2`` and ``cv2x/SingleMover-v2`` change from the v0 defaults: observation
 #: version 2 (the plan from the mover's sensing estimate), improvement rewards per target receiver
 V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
-#: the defaults of each env version (v0: :class:`EnvOptions`' own)
-VERSION_DEFAULTS: dict[str, dict[str, Any]] = {"v0": {}, "v1": V1_DEFAULTS, "v2": V2_DEFAULTS}
+#: what ``cv2x/Mobility-v3`` and ``cv2x/SingleMover-v3`` change from the v0 defaults: v2's rewards, the
+#: plan-free observation version 3 (measurements) and shadowing that follows the vehicles
+V3_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 3, "shadow_field": True}
+#: ``cv2x/Cooperative-v0``: v3 with every vehicle moving for the team objective
+COOPERATIVE_DEFAULTS: dict[str, Any] = {**V3_DEFAULTS, "reward": "team"}
+#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``)
+VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
+    "v0": {},
+    "v1": V1_DEFAULTS,
+    "v2": V2_DEFAULTS,
+    "v3": V3_DEFAULTS,
+    "cooperative-v0": COOPERATIVE_DEFAULTS,
+}
 
 
 def _option(default: Any, doc: str, unit: str = "", shown: str | None = None, **rules: Any) -> Any:
@@ -257,6 +276,33 @@ class EnvOptions:
         "commands SUMO honours within its acceleration limits and car-following safety (`docs/mobility.md`)",
         choices=TRAFFIC_ACTIONS,
     )
+    team_objective: str = _option(
+        "utility",
+        "what the team part of `team` / `mixed` rewards averages over the vehicles: `utility` (their eq. 12 "
+        "utilities, per target receiver with `normalise_reward`) or `prr` (their PRR: the network mean PRR)",
+        choices=TEAM_OBJECTIVES,
+    )
+    shadow_field: bool = _option(
+        False,
+        "snapshot mode: shadowing that follows the vehicles (`cv2x_marl.sim.shadow_field`: each pair's shadowing "
+        "decorrelates with how far its ends moved, `channel.shadowing_decorrelation_m`; equal to the snapshot's at "
+        "the start); false: every pair keeps the snapshot's shadowing wherever the vehicles move",
+    )
+    sensing_window: int = _option(
+        SENSING_WINDOW,
+        "observation version 3: the periods (100 ms each) over which a vehicle averages each neighbour's RSRP "
+        "(the 1000 ms sensing window of TS 36.213 clause 14.1.1.6)",
+        "periods",
+        lo=1,
+        hi=1000,
+    )
+    rsrp_error_db: float = _option(
+        RSRP_ERROR_DB,
+        "observation version 3: standard deviation of the Gaussian error of each RSRP report (the +-6 dB absolute "
+        "RSRP accuracy of TS 36.133 clause 9.1.2.1 read as a 95 % bound: 6 / 2)",
+        "dB",
+        lo=0.0,
+    )
 
     @classmethod
     def from_mapping(cls, options: Mapping[str, Any], version: str = "v0") -> EnvOptions:
@@ -288,7 +334,7 @@ class EnvOptions:
         if self.render_mode not in (None, *RENDER_MODES):
             refuse("render_mode", self.render_mode, "None | rgb_array | human")
         if self.observation not in VERSIONS or isinstance(self.observation, bool):
-            refuse("observation", self.observation, "0 | 1 | 2")
+            refuse("observation", self.observation, " | ".join(str(v) for v in VERSIONS))
         if self.config is not None and not isinstance(self.config, ScenarioConfig):
             refuse("config", self.config, "null or a ScenarioConfig")
         if not isinstance(self.model, str):
@@ -299,17 +345,21 @@ class EnvOptions:
         """Cross-option rules (those that need no scenario)."""
         if self.p_min >= 1.0:
             refuse("p_min", self.p_min, "finite number in (0, 1)")
-        if not isinstance(self.privileged, bool) or (self.privileged and self.observation < 1):
-            refuse("privileged", self.privileged, "bool (observation >= 1)")
-        if self.action_mode == "plan_residual" and (self.observation < 1 or self.mode != "snapshot"):
+        if not isinstance(self.privileged, bool) or (self.privileged and self.observation not in (1, 2)):
+            refuse("privileged", self.privileged, "bool (true: observation 1 or 2)")
+        if self.action_mode == "plan_residual" and (self.observation not in (1, 2) or self.mode != "snapshot"):
             refuse(
                 "action_mode",
                 self.action_mode,
-                " | ".join(ACTION_MODES) + " (plan_residual: observation >= 1, snapshot mode)",
+                " | ".join(ACTION_MODES) + " (plan_residual: observation 1 or 2, snapshot mode)",
             )
+        if self.observation == 3 and self.mode != "snapshot":
+            refuse("observation", self.observation, "0 | 1 | 2 in traffic mode (3: snapshot mode)")
+        if self.shadow_field and self.mode != "snapshot":
+            refuse("shadow_field", self.shadow_field, "false unless mode is snapshot")
         if self.settle_steps >= self.max_cycles:
             refuse("settle_steps", self.settle_steps, "integer in [0, max_cycles)")
-        if self.replan_every is not None and self.observation < 2:
+        if self.replan_every is not None and self.observation != 2:
             refuse("replan_every", self.replan_every, "null unless observation is 2")
         if self.reset_cache and self.mode != "snapshot":
             refuse("reset_cache", self.reset_cache, "0 unless mode is snapshot")

@@ -1,19 +1,20 @@
 """The env ids, their versions, the factories behind them and their registration, in one place.
 
-Two families, three versions each (the versions' defaults are
-:data:`cv2x_marl.env.mobility_env.VERSION_DEFAULTS`):
+Two families of four versions each, and the cooperative task (the defaults of each are
+:data:`cv2x_marl.env.options.VERSION_DEFAULTS`):
 
     cv2x/Mobility-vN      PettingZoo, every mover an agent (:class:`~cv2x_marl.env.mobility_env.MobilityEnv`)
     cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:mod:`cv2x_marl.env.single`); vectorised
                           by :mod:`cv2x_marl.env.vector` (``gymnasium.make_vec(..., "vector_entry_point")``)
+    cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
 ``cv2x_marl`` (and starting the CLI) imports neither (about 0.2 s). Entry points are import strings,
 so a fresh process (a Ray worker, a subprocess) resolves the Gymnasium ids with
 ``gymnasium.make("cv2x_marl:cv2x/SingleMover-v2")``, which imports the package first; PettingZoo has
-no such syntax: frameworks take the factories (:func:`parallel_env`, :func:`parallel_env_v1`,
-:func:`parallel_env_v2`, re-exported by :mod:`cv2x_marl.env`) instead.
+no such syntax: frameworks take the factories (:func:`parallel_env`, :func:`parallel_env_v1` ..
+:func:`parallel_env_v3`, :func:`cooperative_parallel_env`, re-exported by :mod:`cv2x_marl.env`) instead.
 
 This module imports only the standard library at its top, so the CLI reads :data:`ENV_IDS` for its
 ``--env`` choices without importing the env (about 0.9 s measured: PettingZoo, numba, the simulator);
@@ -35,13 +36,15 @@ if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 #: the env versions (observation version, reward form: :data:`~cv2x_marl.env.mobility_env.VERSION_DEFAULTS`)
-VERSIONS = ("v0", "v1", "v2")
+VERSIONS = ("v0", "v1", "v2", "v3")
 #: the PettingZoo ids (every mover an agent)
 MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
 #: the Gymnasium ids (vehicle 0 the only mover)
 SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
+#: the cooperative task (PettingZoo; every vehicle moves, team reward)
+COOPERATIVE_IDS = ("cv2x/Cooperative-v0",)
 #: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
-ENV_IDS = tuple(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair)
+ENV_IDS = (*(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair), *COOPERATIVE_IDS)
 #: the id commands run when none is given
 DEFAULT_ENV_ID = "cv2x/SingleMover-v2"
 #: Gymnasium classes per version: (entry point in :mod:`cv2x_marl.env.single`, vector entry point
@@ -50,13 +53,22 @@ _GYM_CLASSES = {
     "v0": ("SingleMoverEnv", "SingleMoverVectorEnv"),
     "v1": ("SingleMoverEnvV1", "SingleMoverVectorEnvV1"),
     "v2": ("SingleMoverEnvV2", "SingleMoverVectorEnvV2"),
+    "v3": ("SingleMoverEnvV3", "SingleMoverVectorEnvV3"),
+}
+#: PettingZoo ids -> the suffix of their factories in :mod:`cv2x_marl.env` (``parallel_env{suffix}``, ``env{suffix}``)
+_PETTINGZOO_SUFFIX = {
+    **{i: ("" if v == "v0" else f"_{v}") for v, i in zip(VERSIONS, MOBILITY_IDS, strict=True)},
+    "cv2x/Cooperative-v0": "_cooperative",
 }
 
 
 def env_version(env_id: str) -> str:
-    """The version (``v0``, ``v1``, ``v2``) of a registered id; unknown ids are refused with the list."""
+    """The key of a registered id's defaults in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (``v0`` ..
+    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``); unknown ids are refused with the list."""
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
+    if env_id in COOPERATIVE_IDS:
+        return "cooperative-" + env_id.rsplit("-", 1)[1]
     return env_id.rsplit("-", 1)[1]
 
 
@@ -96,6 +108,20 @@ def parallel_env_v2(**kwargs: Any) -> MobilityEnv:
     return mobility_v2(**kwargs)
 
 
+def parallel_env_v3(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Mobility-v3``: the ParallelEnv with the plan-free observation version 3 and the shadowing field."""
+    from cv2x_marl.env.mobility_env import MobilityEnvV3
+
+    return MobilityEnvV3(**kwargs)
+
+
+def parallel_env_cooperative(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Cooperative-v0``: every vehicle moves, reward the team objective, observation version 3."""
+    from cv2x_marl.env.mobility_env import CooperativeEnv
+
+    return CooperativeEnv(**kwargs)
+
+
 def raw_env(**kwargs: Any) -> Any:
     """AEC version of ``cv2x/Mobility-v0`` without wrappers."""
     from pettingzoo.utils.conversions import parallel_to_aec_wrapper
@@ -124,6 +150,20 @@ def env_v2(**kwargs: Any) -> Any:
     return parallel_to_aec(parallel_env_v2(**kwargs))
 
 
+def env_v3(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Mobility-v3`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_v3(**kwargs))
+
+
+def env_cooperative(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Cooperative-v0`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_cooperative(**kwargs))
+
+
 # -- registration -----------------------------------------------------------------------------------
 
 
@@ -133,18 +173,23 @@ def _register_gymnasium() -> None:
     for version, env_id in zip(VERSIONS, SINGLE_MOVER_IDS, strict=True):
         cls, vector_cls = _GYM_CLASSES[version]
         if env_id not in gymnasium.registry:
+            wrappers = ()
+            if version == "v3":  # the observation's time left follows a TimeLimit given to make
+                from gymnasium.envs.registration import WrapperSpec
+
+                wrappers = (WrapperSpec("FollowTimeLimit", "cv2x_marl.env.single:FollowTimeLimit", {}),)
             gymnasium.register(
                 id=env_id,
                 entry_point=f"cv2x_marl.env.single:{cls}",
                 vector_entry_point=f"cv2x_marl.env.vector:{vector_cls}",
+                additional_wrappers=wrappers,
             )
 
 
 def _register_pettingzoo() -> None:
     import pettingzoo
 
-    for version, env_id in zip(VERSIONS, MOBILITY_IDS, strict=True):
-        suffix = "" if version == "v0" else f"_{version}"
+    for env_id, suffix in _PETTINGZOO_SUFFIX.items():
         for kind, entry in (("parallel", f"cv2x_marl.env:parallel_env{suffix}"), ("aec", f"cv2x_marl.env:env{suffix}")):
             registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
             if env_id not in registry:

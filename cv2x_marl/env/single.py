@@ -1,8 +1,8 @@
-"""``cv2x/SingleMover-v0`` and ``-v1``: the paper's own setting as a single-agent Gymnasium env.
+"""``cv2x/SingleMover-v0`` .. ``-v3``: the paper's own setting as a single-agent Gymnasium env.
 
 Vehicle 0 moves; every other vehicle stays where the snapshot put it. Observation, action,
 reward and info are vehicle 0's in :class:`cv2x_marl.env.MobilityEnv` with ``movers=[0]``
-(``-v1``, ``-v2``: with :data:`~cv2x_marl.env.options.V1_DEFAULTS`, ``V2_DEFAULTS``).
+(``-v1``, ``-v2``, ``-v3``: with :data:`~cv2x_marl.env.options.V1_DEFAULTS`, ``V2_DEFAULTS``, ``V3_DEFAULTS``).
 """
 
 from __future__ import annotations
@@ -35,6 +35,9 @@ class SingleMoverEnv(gym.Env):
         self.observation_space = self.par.observation_space(AGENT)
         self.action_space = self.par.action_space(AGENT)
         self._zero = np.zeros(2, dtype=np.float32)
+        #: a Gymnasium ``TimeLimit`` around this env (steps; None: none): the observation's time left
+        #: follows the shorter of it and ``max_cycles`` (:func:`follow_time_limit` sets it)
+        self.time_limit: int | None = None
         #: steps go through :meth:`MobilityEnv.step_mover` (snapshot mode, individual reward)
         self.fast = self.par.fast_mover == 0 and render_mode is None
 
@@ -43,6 +46,8 @@ class SingleMoverEnv(gym.Env):
             raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
         super().reset(seed=None if seed is None else int(seed))
         episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
+        limit = self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
+        self.par.horizon = self.par.max_cycles if limit is None else min(self.par.max_cycles, int(limit))
         obs, infos = self.par.reset(seed=episode_seed)
         return obs[AGENT], infos[AGENT]
 
@@ -62,6 +67,34 @@ class SingleMoverEnv(gym.Env):
         self.par.close()
 
 
+def follow_time_limit(env: gym.Env) -> gym.Env:
+    """Make a ``cv2x/SingleMover-*`` env's observation follow the ``TimeLimit`` wrapped around it; returns ``env``.
+
+    ``gymnasium.make(id, max_episode_steps=T)`` wraps the env in a ``TimeLimit`` the env itself cannot see
+    (its own ``spec.max_episode_steps`` is None): this finds the wrapper and sets
+    :attr:`SingleMoverEnv.time_limit` to ``T``, so that from the next reset observation version 3's time
+    left and reach count down from ``min(T, max_cycles)``. ``gymnasium.make("cv2x/SingleMover-v3", ...)``
+    calls it (through :class:`FollowTimeLimit`, registered as the id's additional wrapper).
+    """
+    layer: Any = env
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, gym.wrappers.TimeLimit):
+            break
+        layer = layer.env
+    if isinstance(layer, gym.wrappers.TimeLimit) and isinstance(env.unwrapped, SingleMoverEnv):
+        env.unwrapped.time_limit = int(layer._max_episode_steps)
+    return env
+
+
+class FollowTimeLimit(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The additional wrapper of ``cv2x/SingleMover-v3``: applies :func:`follow_time_limit` to what
+    ``gymnasium.make`` built (it comes after the ``TimeLimit``) and passes everything through."""
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, follow_time_limit(env))
+
+
 class SingleMoverEnvV1(SingleMoverEnv):
     """``cv2x/SingleMover-v1``: observation version 1 and improvement rewards (see ``docs/env.md``)."""
 
@@ -73,3 +106,11 @@ class SingleMoverEnvV2(SingleMoverEnv):
     improvement rewards (see ``docs/env.md``)."""
 
     version = 2
+
+
+class SingleMoverEnvV3(SingleMoverEnv):
+    """``cv2x/SingleMover-v3``: plan-free observation version 3 (measured RSRP, resources, interferers),
+    shadowing that follows the mover, improvement rewards (see ``docs/env.md``). The observation's time
+    left follows a shorter Gymnasium ``TimeLimit`` (``spec.max_episode_steps``) when one is in force."""
+
+    version = 3

@@ -3,7 +3,7 @@
     envs = gymnasium.make_vec("cv2x/SingleMover-v2", num_envs=16, vectorization_mode="vector_entry_point")
 
 returns a :class:`SingleMoverVectorEnv` (``-v1``: :class:`SingleMoverVectorEnvV1`, ``-v2``:
-:class:`SingleMoverVectorEnvV2`). It follows Gymnasium's vector API like ``SyncVectorEnv`` over the
+:class:`SingleMoverVectorEnvV2`, ``-v3``: :class:`SingleMoverVectorEnvV3`). It follows Gymnasium's vector API like ``SyncVectorEnv`` over the
 same single-agent envs, and gives the same results bit for bit (``tests/env/test_vector.py``):
 
 * seeding: ``reset(seed=s)`` resets copy k with seed ``s + k`` (a list gives one seed per copy,
@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from cv2x_marl.checks import is_int
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
 from cv2x_marl.env.mover_batch import MoverBatch, batch_problem, refuse_episode_method
-from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
+from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2, SingleMoverEnvV3
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
 
@@ -247,3 +247,10 @@ class SingleMoverVectorEnvV2(SingleMoverVectorEnv):
     """K copies of ``cv2x/SingleMover-v2`` (see :class:`SingleMoverVectorEnv`)."""
 
     single_env = SingleMoverEnvV2
+
+
+class SingleMoverVectorEnvV3(SingleMoverVectorEnv):
+    """K copies of ``cv2x/SingleMover-v3`` (see :class:`SingleMoverVectorEnv`; stepped one by one until the
+    single-mover fast path reads the shadowing field and refreshes the measurements)."""
+
+    single_env = SingleMoverEnvV3

@@ -34,8 +34,8 @@ def test_v2_ids_and_checkers() -> None:
     assert g.observation_space.shape == (20 * 8 + 5 + len(OWN_V1_NAMES),)
     gymnasium.utils.env_checker.check_env(g.unwrapped, skip_render_check=True)
     sb3_check_env(g.unwrapped, warn=True)
-    with pytest.raises(ValueError, match=r"observation.*0 \| 1 \| 2"):
-        MobilityEnv(observation=3)
+    with pytest.raises(ValueError, match=r"observation.*0 \| 1 \| 2 \| 3"):
+        MobilityEnv(observation=4)
     with pytest.raises(ValueError, match=r"invalid env argument observation=2.*truth_los is geometry"):
         MobilityEnv(observation=2, truth_los="geometry")
 
