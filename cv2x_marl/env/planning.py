@@ -373,3 +373,58 @@ def sensing_plan(
         row = env.links.sensed_row(int(i), pos)
         out[b], _ = best_reachable(row, reachable_set(env, int(i)), env.p_min, grid_m=grid_m, refine=refine)
     return out
+
+
+#: the ``sensing`` planner on observation version 3 replans every this many steps: once per sensing
+#: window (10 periods), when the window's reports have been renewed
+MEASURED_REPLAN_EVERY = 10
+
+
+def measured_row(env: PlanningEnv, mover: int) -> Any:
+    """The mover's links as it estimates them from its measurements (observation version 3).
+
+    Like :meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.sensed_row`, but the own links' shadowing is what
+    the measured RSRP implies at the current positions, not the truth: for each neighbour j,
+    ``s_j = (EIRP - PL(x_i, x_j)) - rsrp_dbm[j, i]`` (the report of :mod:`cv2x_marl.env.measurement`, fast
+    fading and report error included; 0 dB for a neighbour never heard), held fixed over the candidates (the
+    vehicle cannot know the field elsewhere); every pair without the mover at its median (0 dB). LOS states
+    are the snapshot's. Returns a :class:`~cv2x_marl.sim.ground_truth.MoverRow` (compiled kernels only).
+
+    Args:
+        env: a snapshot-mode env with observation version 3 (its ``measure``).
+        mover: the vehicle index.
+    """
+    from cv2x_marl.sim import kernels
+    from cv2x_marl.sim.ground_truth import MoverRow, mean_rx_dbm
+
+    links = env.links
+    if not links.compiled:
+        raise ValueError("the measured estimate needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+    measure = getattr(env, "measure", None)
+    if measure is None:
+        raise ValueError("the measured estimate needs observation version 3 (the env's RSRP measurements)")
+    pos = np.ascontiguousarray(env.positions_m, dtype=np.float64)
+    n = pos.shape[0]
+    i = int(mover)
+    free_dbm = mean_rx_dbm(links.config, links.road, pos[:, None, :], pos[None, :, :], links.los, np.zeros((n, n)))
+    shadow = np.nan_to_num(free_dbm[:, i] - measure.rsrp_dbm[:, i], nan=0.0, posinf=0.0, neginf=0.0)  # [N]
+    shadow[i] = 0.0
+    gain = np.full((n, n), float(links.eirp_dbm))
+    gain[i, :] = gain[:, i] = links.eirp_dbm - shadow
+    row = MoverRow(links, i, pos)
+    (period, los, _gain, wb1, range2, idx, val, *_rest) = links._kernel_args
+    gain = np.ascontiguousarray(gain)
+    interference = kernels.mover_interference(pos, period, los, gain, wb1, range2, idx, val, i)
+    row._args = (*row._args[:4], np.ascontiguousarray(gain[i]), *row._args[5:7], interference, *row._args[8:])
+    return row
+
+
+def measured_plan(
+    env: PlanningEnv, movers: list[int] | NDArray[np.int64], grid_m: float = PLAN_GRID_M, refine: int = 4
+) -> FloatArray:
+    """[B, 2] each mover's best reachable position under its measured estimate (:func:`measured_row`),
+    the others where they are now (the ``sensing`` planner on observation version 3)."""
+    out = np.empty((len(movers), 2))
+    for b, i in enumerate(movers):
+        out[b], _ = best_reachable(measured_row(env, int(i)), reachable_set(env, int(i)), env.p_min, grid_m, refine)
+    return out

@@ -15,7 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.env.observation import decode_observations
-from cv2x_marl.env.planning import PlanningEnv, model_plan, reachable_set, sensing_plan
+from cv2x_marl.env.planning import (
+    MEASURED_REPLAN_EVERY,
+    PlanningEnv,
+    measured_plan,
+    model_plan,
+    reachable_set,
+    sensing_plan,
+)
 from cv2x_marl.policies.base import Actions, Observations
 
 FloatArray = NDArray[np.float64]
@@ -33,7 +40,11 @@ class PlannerPolicy:
     estimate instead of the two-distance model (:func:`sensing_plan`): still not privileged (it reads
     only what a vehicle measures), it shows how much of the rest is the model. In an observation
     version 2 env it follows the env's plan, which is the same estimate (and is recomputed with
-    ``replan_every``).
+    ``replan_every``). In an observation version 3 env (no plan in the observation) it plans from the
+    measurements the observation carries (:func:`~cv2x_marl.env.planning.measured_plan`: own links from
+    the measured RSRP, the others' pairs at median shadowing) and replans every
+    :data:`~cv2x_marl.env.planning.MEASURED_REPLAN_EVERY` steps (once per sensing window) from the
+    refreshed measurements.
 
     Args:
         env: the env it acts in (read, never stepped).
@@ -61,7 +72,11 @@ class PlannerPolicy:
     def act(self, observations: Observations) -> Actions:
         env = self.env
         agents = list(observations)
-        if self.estimator == "sensing" and env.layout.version >= 2:
+        if self.estimator == "sensing" and env.layout.version == 3:
+            if not self.targets_m or env.t % MEASURED_REPLAN_EVERY == 0:
+                idx = [env.agent_index[a] for a in agents]
+                self.targets_m = dict(zip(agents, measured_plan(env, idx), strict=True))
+        elif self.estimator == "sensing" and env.layout.version == 2:
             # the env's own plan is this estimate (and follows its replanning, ``replan_every``)
             self.targets_m = {a: env.plan_m[env.agent_index[a]] for a in agents}
         elif not self.targets_m:

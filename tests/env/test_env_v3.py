@@ -150,3 +150,42 @@ def test_refusals() -> None:
         MobilityEnv(observation=3, action_mode="plan_residual", **FAST)
     with pytest.raises(ValueError, match="invalid env argument sensing_window=0"):
         MobilityEnv(observation=3, sensing_window=0, **FAST)
+
+
+def test_measured_row_equals_sensed_row_with_exact_measurements() -> None:
+    """With reports equal to the true mean power (no fading, no error, no field), the measured estimate is
+    the v2 sensing estimate (own links true, other pairs at 0 dB)."""
+    from cv2x_marl.env.planning import measured_plan, measured_row, reachable_set
+
+    par = env_module.parallel_env_v3(max_cycles=20, shadow_field=False, **FAST)
+    par.reset(seed=5)
+    par.measure.rsrp_dbm = par.links.rx_dbm(par.positions_m)
+    cand = par.positions_m[3] + np.random.default_rng(0).uniform(-60, 60, (50, 2))
+    for i in (0, 3):
+        got = measured_row(par, i).utility(cand, par.p_min)
+        want = par.links.sensed_row(i, par.positions_m).utility(cand, par.p_min)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    plan = measured_plan(par, [0])
+    assert reachable_set(par, 0).contains(plan)[0]
+    row = measured_row(par, 0)
+    assert row.utility(plan, par.p_min)[0] >= row.utility(par.positions_m[:1], par.p_min)[0]
+
+
+def test_sensing_planner_on_v3_replans_from_measurements() -> None:
+    from cv2x_marl.env.planning import MEASURED_REPLAN_EVERY, measured_plan
+    from cv2x_marl.policies.planner import PlannerPolicy
+
+    par = env_module.parallel_env_v3(max_cycles=12, movers=[0], **FAST)
+    obs, _ = par.reset(seed=6)
+    pol = PlannerPolicy(par, None, estimator="sensing")
+    pol.reset()
+    targets = []
+    for _ in range(12):
+        act = pol.act(obs)
+        if par.t % MEASURED_REPLAN_EVERY == 0:
+            targets.append(pol.targets_m["vehicle_0"].copy())
+            np.testing.assert_allclose(targets[-1], measured_plan(par, [0])[0])
+        want = np.clip((pol.targets_m["vehicle_0"] - par.positions_m[0]) / par.max_step_m, -1, 1)
+        np.testing.assert_allclose(act["vehicle_0"], want, rtol=1e-6)
+        obs, *_ = par.step(act)
+    assert len(targets) == 2
