@@ -21,6 +21,7 @@ from pettingzoo import ParallelEnv
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.env import step as step_core
+from cv2x_marl.env.measurement import Measurements, scaled_rsrp
 from cv2x_marl.env.observation import (
     ObservationLayout,
     build_observations,
@@ -29,7 +30,6 @@ from cv2x_marl.env.observation import (
     fill_measured,
     fill_own_v3,
 )
-from cv2x_marl.env.measurement import Measurements, scaled_rsrp
 from cv2x_marl.env.options import COOPERATIVE_DEFAULTS, V1_DEFAULTS, V2_DEFAULTS, V3_DEFAULTS, EnvOptions
 from cv2x_marl.env.planning import (
     PLAN_GRID_M,
@@ -186,7 +186,7 @@ class MobilityEnv(ParallelEnv):
         self.n = cfg.n_vehicles
         self.mode = mode
         self.max_cycles = max_cycles
-        #: the horizon in force (steps): ``max_cycles``, or a shorter Gymnasium ``TimeLimit`` (observation 3's time left)
+        #: the horizon in force (steps): ``max_cycles`` or a shorter Gymnasium ``TimeLimit`` (v3's time left)
         self.horizon = max_cycles
         self.max_step_m = float(max_step_m)
         self.reward_kind = reward

@@ -399,7 +399,9 @@ def measured_row(env: PlanningEnv, mover: int) -> Any:
 
     links = env.links
     if not links.compiled:
-        raise ValueError("the measured estimate needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+        raise ValueError(
+            "the measured estimate needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)"
+        )
     measure = getattr(env, "measure", None)
     if measure is None:
         raise ValueError("the measured estimate needs observation version 3 (the env's RSRP measurements)")

@@ -173,7 +173,7 @@ def _register_gymnasium() -> None:
     for version, env_id in zip(VERSIONS, SINGLE_MOVER_IDS, strict=True):
         cls, vector_cls = _GYM_CLASSES[version]
         if env_id not in gymnasium.registry:
-            wrappers = ()
+            wrappers: tuple[Any, ...] = ()
             if version == "v3":  # the observation's time left follows a TimeLimit given to make
                 from gymnasium.envs.registration import WrapperSpec
 

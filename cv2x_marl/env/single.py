@@ -46,7 +46,9 @@ class SingleMoverEnv(gym.Env):
             raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
         super().reset(seed=None if seed is None else int(seed))
         episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
-        limit = self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
+        limit = (
+            self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
+        )
         self.par.horizon = self.par.max_cycles if limit is None else min(self.par.max_cycles, int(limit))
         obs, infos = self.par.reset(seed=episode_seed)
         return obs[AGENT], infos[AGENT]

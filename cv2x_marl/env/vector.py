@@ -3,8 +3,9 @@
     envs = gymnasium.make_vec("cv2x/SingleMover-v2", num_envs=16, vectorization_mode="vector_entry_point")
 
 returns a :class:`SingleMoverVectorEnv` (``-v1``: :class:`SingleMoverVectorEnvV1`, ``-v2``:
-:class:`SingleMoverVectorEnvV2`, ``-v3``: :class:`SingleMoverVectorEnvV3`). It follows Gymnasium's vector API like ``SyncVectorEnv`` over the
-same single-agent envs, and gives the same results bit for bit (``tests/env/test_vector.py``):
+:class:`SingleMoverVectorEnvV2`, ``-v3``: :class:`SingleMoverVectorEnvV3`). It follows Gymnasium's vector
+API like ``SyncVectorEnv`` over the same single-agent envs, and gives the same results bit for bit
+(``tests/env/test_vector.py``):
 
 * seeding: ``reset(seed=s)`` resets copy k with seed ``s + k`` (a list gives one seed per copy,
   None draws fresh ones); a copy's later episodes draw their seeds from its own generator, so the

@@ -101,7 +101,7 @@ def test_time_left_follows_a_time_limit() -> None:
     lay = g.unwrapped.par.layout
     assert lay.own_v3(o)[4] == pytest.approx(1.0) and lay.own_v3(o)[5] == pytest.approx(20 * 5.0 / 100)
     for _ in range(5):
-        o, _, _, trunc, _ = g.step(np.zeros(2, np.float32))
+        o, *_ = g.step(np.zeros(2, np.float32))
     assert lay.own_v3(o)[4] == pytest.approx(15 / 20) and lay.own_v3(o)[5] == pytest.approx(15 * 5.0 / 100)
     plain = gymnasium.make("cv2x/SingleMover-v3", max_cycles=50, **FAST)
     o, _ = plain.reset(seed=1)
@@ -133,7 +133,11 @@ def test_cooperative_team_reward_and_state() -> None:
     s = par.state()
     n = par.n
     assert s.shape == par.state_space.shape == (6 * n + 2 * n * n,)
-    np.testing.assert_allclose(s[6 * n : 6 * n + n * n], np.clip((np.nan_to_num(par.measure.rsrp_dbm, nan=-100.0).ravel() + 100) / 20, -10, 10), rtol=1e-6)
+    np.testing.assert_allclose(
+        s[6 * n : 6 * n + n * n],
+        np.clip((np.nan_to_num(par.measure.rsrp_dbm, nan=-100.0).ravel() + 100) / 20, -10, 10),
+        rtol=1e-6,
+    )
     prr_env = env_module.parallel_env_cooperative(max_cycles=6, team_objective="prr", **FAST)
     prr_env.reset(seed=3)
     np.testing.assert_allclose(prr_env.prr, prr_before)
