@@ -173,16 +173,10 @@ def _register_gymnasium() -> None:
     for version, env_id in zip(VERSIONS, SINGLE_MOVER_IDS, strict=True):
         cls, vector_cls = _GYM_CLASSES[version]
         if env_id not in gymnasium.registry:
-            wrappers: tuple[Any, ...] = ()
-            if version == "v3":  # the observation's time left follows a TimeLimit given to make
-                from gymnasium.envs.registration import WrapperSpec
-
-                wrappers = (WrapperSpec("FollowTimeLimit", "cv2x_marl.env.single:FollowTimeLimit", {}),)
             gymnasium.register(
                 id=env_id,
                 entry_point=f"cv2x_marl.env.single:{cls}",
                 vector_entry_point=f"cv2x_marl.env.vector:{vector_cls}",
-                additional_wrappers=wrappers,
             )
 
 

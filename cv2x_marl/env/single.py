@@ -75,8 +75,10 @@ def follow_time_limit(env: gym.Env) -> gym.Env:
     ``gymnasium.make(id, max_episode_steps=T)`` wraps the env in a ``TimeLimit`` the env itself cannot see
     (its own ``spec.max_episode_steps`` is None): this finds the wrapper and sets
     :attr:`SingleMoverEnv.time_limit` to ``T``, so that from the next reset observation version 3's time
-    left and reach count down from ``min(T, max_cycles)``. ``gymnasium.make("cv2x/SingleMover-v3", ...)``
-    calls it (through :class:`FollowTimeLimit`, registered as the id's additional wrapper).
+    left and reach count down from ``min(T, max_cycles)``. ``gymnasium.make`` cannot do it itself: it hides
+    the limit from the env, and an id registered with an additional wrapper could no longer be made with
+    ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``. Without it the time left counts
+    down from ``max_cycles``; setting ``env.unwrapped.time_limit`` directly does the same.
     """
     layer: Any = env
     while isinstance(layer, gym.Wrapper):
@@ -86,15 +88,6 @@ def follow_time_limit(env: gym.Env) -> gym.Env:
     if isinstance(layer, gym.wrappers.TimeLimit) and isinstance(env.unwrapped, SingleMoverEnv):
         env.unwrapped.time_limit = int(layer._max_episode_steps)
     return env
-
-
-class FollowTimeLimit(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """The additional wrapper of ``cv2x/SingleMover-v3``: applies :func:`follow_time_limit` to what
-    ``gymnasium.make`` built (it comes after the ``TimeLimit``) and passes everything through."""
-
-    def __init__(self, env: gym.Env) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self)
-        gym.Wrapper.__init__(self, follow_time_limit(env))
 
 
 class SingleMoverEnvV1(SingleMoverEnv):

@@ -158,7 +158,7 @@ def test_seeded_first_reset_fixes_the_episode_sequence() -> None:
 
 def test_bad_v1_arguments_name_the_argument() -> None:
     for kwargs, name in (
-        ({"observation": 3}, "observation"),
+        ({"observation": 4}, "observation"),
         ({"observation": True}, "observation"),
         ({"privileged": True}, "privileged"),
         ({"reward_form": "delta"}, "reward_form"),

@@ -96,7 +96,10 @@ def test_layout_plan_free_and_entries_against_numpy() -> None:
 
 
 def test_time_left_follows_a_time_limit() -> None:
-    g = gymnasium.make("cv2x/SingleMover-v3", max_cycles=50, max_episode_steps=20, **FAST)
+    from cv2x_marl.env.single import follow_time_limit
+
+    g = follow_time_limit(gymnasium.make("cv2x/SingleMover-v3", max_cycles=50, max_episode_steps=20, **FAST))
+    assert g.unwrapped.time_limit == 20
     o, _ = g.reset(seed=1)
     lay = g.unwrapped.par.layout
     assert lay.own_v3(o)[4] == pytest.approx(1.0) and lay.own_v3(o)[5] == pytest.approx(20 * 5.0 / 100)
