@@ -110,9 +110,23 @@ class Measurements:
             np.full((n, n), np.nan),
             np.zeros((n, n), dtype=np.int64),
         )
-        for _ in range(window):
-            state.update(rx_dbm, p)
+        with np.errstate(over="ignore"):
+            rx_mw = 10.0 ** (np.asarray(rx_dbm) / 10.0)
+        error = np.zeros((n, n))
+        for k in range(window):  # the same draws, in the same order, as ``window`` calls of update()
+            decoded, fade, error = draw_period(rng, p, error_db)
+            state.power_mw[k] = np.where(decoded, rx_mw * fade, 0.0)
+            state.count[k] = decoded
+            state.age = np.where(decoded, 0, state.age + 1)
+        state._report(error)
         return state
+
+    def _report(self, error: FloatArray) -> None:
+        """The reports from the window's samples with this period's errors [N, N] (dB); stale where none."""
+        heard = self.count.sum(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            report = 10.0 * np.log10(self.power_mw.sum(axis=0) / heard) + error
+        self.rsrp_dbm = np.where(heard > 0, report, self.rsrp_dbm)
 
     def update(self, rx_dbm: FloatArray, p: FloatArray) -> None:
         """One period at the current positions: each link's packet, decoded or not, and the reports.
@@ -128,11 +142,7 @@ class Measurements:
         self.power_mw[k] = sample
         self.count[k] = decoded
         self.head = (k + 1) % self.window
-        heard = self.count.sum(axis=0)
-        fresh = heard > 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            report = 10.0 * np.log10(self.power_mw.sum(axis=0) / heard) + error
-        self.rsrp_dbm = np.where(fresh, report, self.rsrp_dbm)
+        self._report(error)
         self.age = np.where(decoded, 0, self.age + 1)
 
     def copy(self) -> Measurements:
