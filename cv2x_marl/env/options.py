@@ -48,9 +48,9 @@ TRAFFIC_ACTIONS = ("offset", "speed")
 TEAM_OBJECTIVES = ("utility", "prr")
 #: the sensing window of TS 36.213 clause 14.1.1.6 (1000 ms) in 100-ms periods
 SENSING_WINDOW = 10
-#: standard deviation (dB) of the RSRP measurement error: the +-6 dB absolute RSRP accuracy of TS 36.133
-#: (clause 9.1.2.1, normal conditions; the sidelink S-RSRP / PSSCH-RSRP requirements state the same bound)
-#: read as a two-sigma (95 %) bound of a Gaussian error: 6 / 2 = 3 dB
+#: standard deviation (dB) of the RSRP measurement error: the +-6 dB absolute accuracy of E-UTRA RSRP in
+#: TS 36.133 (clause 9.1.2.1, intra-frequency, normal conditions; +-9 dB in extreme conditions), taken for the
+#: sidelink RSRP (TS 36.214 PSSCH-RSRP) and read as a two-sigma (95 %) bound of a Gaussian error: 6 / 2 = 3 dB
 RSRP_ERROR_DB = 3.0
 #: render modes (None: no rendering)
 RENDER_MODES = ("rgb_array", "human")
