@@ -145,21 +145,6 @@ class Measurements:
         self._report(error)
         self.age = np.where(decoded, 0, self.age + 1)
 
-    def copy(self) -> Measurements:
-        """An independent copy (arrays and generator state)."""
-        rng = np.random.default_rng()
-        rng.bit_generator.state = self.rng.bit_generator.state
-        return Measurements(
-            self.window,
-            self.error_db,
-            rng,
-            self.power_mw.copy(),
-            self.count.copy(),
-            self.head,
-            self.rsrp_dbm.copy(),
-            self.age.copy(),
-        )
-
 
 def scaled_rsrp(rsrp_dbm: FloatArray) -> FloatArray:
     """The observation's RSRP entry: ``(rsrp_dbm + 100) / 20`` (0 where never heard)."""

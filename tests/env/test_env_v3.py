@@ -211,3 +211,21 @@ def test_reset_cache_is_bit_identical_on_v3() -> None:
         for a in o1:
             np.testing.assert_array_equal(s1[0][a], s2[0][a])
             assert s1[1][a] == s2[1][a]
+
+
+def test_vector_entry_point_matches_single_envs() -> None:
+    vec = gymnasium.make_vec(
+        "cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", max_cycles=4, **FAST
+    )
+    assert not vec.batched  # stepped copy by copy until the fast path reads the field (module docstring)
+    singles = [gymnasium.make("cv2x/SingleMover-v3", max_cycles=4, **FAST) for _ in range(2)]
+    o, _ = vec.reset(seed=20)
+    for k, s in enumerate(singles):
+        np.testing.assert_array_equal(o[k], s.reset(seed=20 + k)[0])
+    acts = np.random.default_rng(2).uniform(-1, 1, (3, 2, 2)).astype(np.float32)
+    for a in acts:
+        o, r, *_ = vec.step(a)
+        for k, s in enumerate(singles):
+            ok, rk, *_ = s.step(a[k])
+            np.testing.assert_array_equal(o[k], ok)
+            assert r[k] == rk
