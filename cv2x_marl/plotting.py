@@ -287,7 +287,9 @@ def plot_benchmark(summary: dict[str, Any], path: str | Path) -> Path:
         for i, (_, r) in enumerate(rows):
             lo, hi = r["ci95_utility_gain"]
             mid = r["iqm_utility_gain"]
-            ax.errorbar(i, 100 * mid, yerr=[[100 * (mid - lo)], [100 * (hi - mid)]], fmt="o", color="#4e79a7", capsize=4)
+            ax.errorbar(
+                i, 100 * mid, yerr=[[100 * (mid - lo)], [100 * (hi - mid)]], fmt="o", color="#4e79a7", capsize=4
+            )
         ceil = task["methods"].get(task["ceiling"])
         if ceil is not None and all(math.isfinite(v) for v in (ceil["iqm_utility_gain"], *ceil["ci95_utility_gain"])):
             ax.axhline(100 * ceil["iqm_utility_gain"], color="#e15759", ls="--", label=f"ceiling ({task['ceiling']})")

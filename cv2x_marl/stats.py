@@ -80,9 +80,7 @@ STATISTICS = {"iqm": iqm_rows, "mean": mean_rows}
 
 def _strata(scores: ArrayLike | Sequence[ArrayLike]) -> list[NDArray[np.float64]]:
     """The strata as 2-D arrays [runs, episodes]: one array (1-D: one run) or a list of them."""
-    if isinstance(scores, np.ndarray) or (
-        isinstance(scores, Sequence) and len(scores) > 0 and np.isscalar(scores[0])
-    ):
+    if isinstance(scores, np.ndarray) or (isinstance(scores, Sequence) and len(scores) > 0 and np.isscalar(scores[0])):
         parts: list[ArrayLike] = [scores]  # type: ignore[list-item]
     else:
         parts = list(scores)  # type: ignore[arg-type]

@@ -127,7 +127,7 @@ def test_refusals() -> None:
     g = np.random.default_rng(0)
     with pytest.raises(ValueError, match="statistic must be one of iqm, mean"):
         stats.bootstrap_ci([1.0, 2.0], g, statistic="median")
-    with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
+    with pytest.raises(ValueError, match=r"rng must be a numpy\.random\.Generator"):
         stats.bootstrap_ci([1.0, 2.0], 0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="level must be"):
         stats.bootstrap_ci([1.0, 2.0], g, level=95)

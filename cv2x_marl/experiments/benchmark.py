@@ -266,7 +266,9 @@ def table_markdown(summary: dict[str, Any]) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for method, m in task["methods"].items():
-            share = "n/a" if m["iqm_share_of_ceiling"] != m["iqm_share_of_ceiling"] else f"{m['iqm_share_of_ceiling']:.1%}"
+            share = (
+                "n/a" if m["iqm_share_of_ceiling"] != m["iqm_share_of_ceiling"] else f"{m['iqm_share_of_ceiling']:.1%}"
+            )
             share_ci = m["ci95_share_of_ceiling"]
             share_ci_text = "n/a" if share_ci[0] != share_ci[0] else f"[{share_ci[0]:.1%}, {share_ci[1]:.1%}]"
             lines.append(
@@ -275,7 +277,12 @@ def table_markdown(summary: dict[str, Any]) -> str:
             )
         lines.append("")
     if summary.get("all_tasks"):
-        lines += ["### All tasks (share of the ceiling, tasks as strata)", "", "| method | IQM | 95 % CI |", "|---|---|---|"]
+        lines += [
+            "### All tasks (share of the ceiling, tasks as strata)",
+            "",
+            "| method | IQM | 95 % CI |",
+            "|---|---|---|",
+        ]
         for method, m in summary["all_tasks"].items():
             lo, hi = m["ci95_share_of_ceiling"]
             lines.append(f"| {method} | {m['iqm_share_of_ceiling']:.1%} | [{lo:.1%}, {hi:.1%}] |")
@@ -313,7 +320,11 @@ def run_benchmark(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
     jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes)
-    params = {"tasks": list(dict.fromkeys(j["task"] for j in jobs)), "methods": list(methods or []), "episodes": episodes}
+    params = {
+        "tasks": list(dict.fromkeys(j["task"] for j in jobs)),
+        "methods": list(methods or []),
+        "episodes": episodes,
+    }
     params["models"] = list(models)
     inputs = [Path(j["policy"][4:]) for j in jobs if j["policy"].startswith("ppo:")]
     with run_folder(out_dir, "benchmark", overwrite=overwrite, parameters=params, inputs=inputs):

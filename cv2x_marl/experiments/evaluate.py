@@ -105,9 +105,7 @@ def parse_seeds(text: str, env_id: str | None) -> tuple[int, ...]:
     try:
         seeds = tuple(int(s) for s in word.replace(",", " ").split())
     except ValueError:
-        raise ValueError(
-            f"--seeds expects integers separated by commas, or heldout | train, got {text!r}"
-        ) from None
+        raise ValueError(f"--seeds expects integers separated by commas, or heldout | train, got {text!r}") from None
     if not seeds or any(s < 0 or s > MAX_SEED for s in seeds):
         raise ValueError(f"--seeds must be integers in [0, {MAX_SEED}], or heldout | train, got {text!r}")
     if len(set(seeds)) != len(seeds):
@@ -334,7 +332,8 @@ def evaluate_rows(
         raise ValueError("--policy: give at least one policy")
     if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
         raise ValueError(
-            f"--policy: several policies are the training runs of one learned method, each ppo:PATH; got {names_of(specs)}"
+            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
+            f"got {names_of(specs)}"
         )
     resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
     first = resolved[0]
@@ -391,7 +390,7 @@ def evaluate_rows(
                         returns[a] += rew[a]
                 for a in movers:
                     info = last[a]
-                    row = {"run": run} if several else {}
+                    row: dict[str, Any] = {"run": run} if several else {}
                     row.update(
                         {
                             "episode": ep,
@@ -416,8 +415,8 @@ def evaluate_rows(
         with np.errstate(divide="ignore", invalid="ignore"):
             ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
             pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
-        for r, a, b in zip(rows, ug, pg, strict=True):
-            r["utility_gain"], r["prr_gain"] = float(a), float(b)
+        for row, a, b in zip(rows, ug, pg, strict=True):
+            row["utility_gain"], row["prr_gain"] = float(a), float(b)
         summary: dict[str, Any] = {
             "env": env_id,
             "policy": names if several else names[0],
@@ -441,8 +440,8 @@ def evaluate_rows(
             uo = np.array([r["utility_optimum"] for r in rows])
             with np.errstate(divide="ignore", invalid="ignore"):
                 og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
-            for r, g in zip(rows, og, strict=True):
-                r["optimum_gain"] = float(g)
+            for row, g in zip(rows, og, strict=True):
+                row["optimum_gain"] = float(g)
             summary["optimum_utility_gain"] = float(np.nanmean(og))
             summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
             summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
@@ -528,7 +527,11 @@ def format_summary(summary: dict[str, Any], label: str | None = None) -> str:
         f"return {summary['mean_return']:.1f}{share}"
     )
     if "iqm_utility_gain" in summary:
-        parts = [("utility gain", "utility_gain"), ("PRR gain", "prr_gain"), ("share of the optimum", "share_of_optimum")]
+        parts = [
+            ("utility gain", "utility_gain"),
+            ("PRR gain", "prr_gain"),
+            ("share of the optimum", "share_of_optimum"),
+        ]
         sign = {"share_of_optimum": ""}
         shown = []
         for name, key in parts:
