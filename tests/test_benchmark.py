@@ -230,7 +230,10 @@ def test_benchmark_table_equals_a_recomputation_and_evaluate(tmp_path: Path, mon
             assert got["ci95_utility_gain"] == list(stats.bootstrap_ci(ug[None, :], np.random.default_rng(0))[1:])
             assert got["mean_prr"] == pytest.approx(np.mean([float(r["prr_end"]) for r in sel]), rel=1e-12)
             line = next(ln for ln in text.splitlines() if ln.startswith(f"| {method} |") and ln in _section(text, name))
-            assert f"{100 * got['iqm_utility_gain']:+.1f} %" in line and f"{got['mean_prr']:.4f}" in line
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            lo, hi = got["ci95_utility_gain"]
+            assert cells[2:4] == [f"{100 * got['iqm_utility_gain']:+.1f}", f"[{100 * lo:+.1f}, {100 * hi:+.1f}]"]
+            assert cells[4] == f"{100 * got['iqm_share_of_ceiling']:.1f}" and cells[6] == f"{got['mean_prr']:.4f}"
             # the same method through `evaluate` on the same seeds: the same episodes and statistics
             e = ev.evaluate(
                 task.env_id, method, 0, 0, None, dict(task.options), progress=False, seeds=list(task.heldout_seeds[:2])

@@ -246,46 +246,43 @@ def summarise(rows: list[dict[str, Any]], tasks: Mapping[str, Task]) -> dict[str
     return out
 
 
-def _pct(v: float) -> str:
-    return "n/a" if v != v else f"{100 * v:+.1f} %"
+def _pct(v: float, sign: str = "+") -> str:
+    """A fraction as a percentage of one decimal (``n/a`` for NaN)."""
+    return "n/a" if v != v else format(100 * v, sign + ".1f")
 
 
-def _ci(ci: Sequence[float]) -> str:
-    return "n/a" if ci[0] != ci[0] else f"[{100 * ci[0]:+.1f}, {100 * ci[1]:+.1f}]"
+def _ci(ci: Sequence[float], sign: str = "+") -> str:
+    return "n/a" if ci[0] != ci[0] else f"[{_pct(ci[0], sign)}, {_pct(ci[1], sign)}]"
 
 
 def table_markdown(summary: dict[str, Any]) -> str:
     """``table.md``: per task one table of its methods (IQM and 95 % CI of the utility gain and of the
-    share of the ceiling, the mean PRR at the end of the episodes)."""
+    share of the ceiling, in %, and the mean PRR at the end of the episodes)."""
     lines = []
     for name, task in summary["tasks"].items():
         lines += [
             f"### {name} (`{task['env_id']}`), {task['episodes']} held-out episodes, ceiling `{task['ceiling']}`",
             "",
-            "| method | runs | utility gain IQM | 95 % CI | share of the ceiling IQM | 95 % CI | mean PRR |",
+            "| method | runs | utility gain, IQM (%) | 95 % CI | share of the ceiling, IQM (%) | 95 % CI | mean PRR |",
             "|---|---|---|---|---|---|---|",
         ]
         for method, m in task["methods"].items():
-            share = (
-                "n/a" if m["iqm_share_of_ceiling"] != m["iqm_share_of_ceiling"] else f"{m['iqm_share_of_ceiling']:.1%}"
-            )
-            share_ci = m["ci95_share_of_ceiling"]
-            share_ci_text = "n/a" if share_ci[0] != share_ci[0] else f"[{share_ci[0]:.1%}, {share_ci[1]:.1%}]"
             lines.append(
                 f"| {method} | {m['runs']} | {_pct(m['iqm_utility_gain'])} | {_ci(m['ci95_utility_gain'])} | "
-                f"{share} | {share_ci_text} | {m['mean_prr']:.4f} |"
+                f"{_pct(m['iqm_share_of_ceiling'], '')} | {_ci(m['ci95_share_of_ceiling'], '')} | {m['mean_prr']:.4f} |"
             )
         lines.append("")
     if summary.get("all_tasks"):
         lines += [
-            "### All tasks (share of the ceiling, tasks as strata)",
+            "### All tasks (share of the ceiling, the tasks as strata)",
             "",
-            "| method | IQM | 95 % CI |",
+            "| method | IQM (%) | 95 % CI |",
             "|---|---|---|",
         ]
         for method, m in summary["all_tasks"].items():
-            lo, hi = m["ci95_share_of_ceiling"]
-            lines.append(f"| {method} | {m['iqm_share_of_ceiling']:.1%} | [{lo:.1%}, {hi:.1%}] |")
+            lines.append(
+                f"| {method} | {_pct(m['iqm_share_of_ceiling'], '')} | {_ci(m['ci95_share_of_ceiling'], '')} |"
+            )
         lines.append("")
     return "\n".join(lines)
 

@@ -324,6 +324,8 @@ def evaluate_rows(
 
     if seeds is not None:
         seeds = [int(s) for s in seeds]
+        if not seeds:
+            raise ValueError("--seeds: give at least one seed")
         episodes = len(seeds)
     check_episodes(episodes, 1)  # the count itself; with the env's movers below
     several = isinstance(policy_spec, Sequence) and not isinstance(policy_spec, str)
