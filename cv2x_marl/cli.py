@@ -24,6 +24,8 @@ from cv2x_marl.config import (
     to_dict,
 )
 from cv2x_marl.env.registry import ENV_IDS
+from cv2x_marl.experiments.benchmark import add_arguments as _benchmark_arguments
+from cv2x_marl.experiments.benchmark import run_from_args as _cmd_benchmark
 from cv2x_marl.extras import MissingExtraError
 from cv2x_marl.io import dumps_json
 from cv2x_marl.rl.errors import TrainError
@@ -264,20 +266,18 @@ def _cmd_gbmu(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from cv2x_marl.experiments.evaluate import evaluate
+    from cv2x_marl.experiments import evaluate as ev
     from cv2x_marl.regression.model import resolve_model
 
-    env_kwargs = {
-        "preset": args.preset,
-        "overrides": args.set or [],
-        "max_cycles": args.max_cycles,
-        "max_step_m": args.max_step,
-    }
+    env_kwargs = {"preset": args.preset, "overrides": args.set or [], "max_cycles": args.max_cycles}
+    env_kwargs["max_step_m"] = args.max_step
     if args.replan_every is not None:
         env_kwargs["replan_every"] = args.replan_every
-    summary = evaluate(
+    env_kwargs.update(ev.parse_env_options(args.env_option or [], ev.EVALUATE_FLAGS))
+    policies = ev.expand_policies(args.policy or ["gbmu"])
+    summary = ev.evaluate(
         args.env,
-        args.policy,
+        policies if len(policies) > 1 else policies[0],
         args.episodes,
         args.seed,
         args.out,
@@ -287,18 +287,12 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         vs_optimum=args.vs_optimum,
         overwrite=args.overwrite,
+        seeds=None if args.seeds is None else ev.parse_seeds(args.seeds, args.env),
     )
     if args.json:
         _print_json(summary)
     else:
-        share = f", {summary['share_of_optimum']:.1%} of the optimum's gain" if args.vs_optimum else ""
-        print(
-            f"{args.policy} on {summary['env']}, {summary['episodes']} episodes x "
-            f"{summary['movers_per_episode']} movers: "
-            f"utility gain {summary['mean_utility_gain']:+.1%}, PRR gain {summary['mean_prr_gain']:+.1%}, "
-            f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
-            f"return {summary['mean_return']:.1f}{share}"
-        )
+        print(ev.format_summary(summary, ", ".join(args.policy or ["gbmu"])))
     return 0
 
 
@@ -555,17 +549,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--policy",
-        default="gbmu",
-        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH | baselines/NAME.yaml",
+        action="append",
+        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH | baselines/NAME.yaml "
+        "(default gbmu); repeated, or a ppo:PATTERN glob: the training runs of one method, pooled",
     )
     p.add_argument(
-        "--vs-optimum", action="store_true", help="also compute the optimum on every episode: share_of_optimum"
+        "--seeds",
+        help="episode seeds: integers separated by commas, or heldout | train (the --env task's lists, "
+        "docs/benchmark.md); adds IQM and 95%% bootstrap CIs (default: --episodes from --seed)",
     )
+    p.add_argument("--env-option", action="append", metavar="KEY=VALUE", help="env argument, YAML value (repeatable)")
+    p.add_argument("--vs-optimum", action="store_true", help="also the optimum on every episode: share_of_optimum")
     p.add_argument(
-        "--episodes",
-        type=COUNT,
-        default=144,
-        help="held-out episodes; episodes x movers at most 1,000,000 (the per-mover rows stay in memory)",
+        "--episodes", type=COUNT, default=144, help="episodes; x movers at most 1,000,000 (rows kept in memory)"
     )
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
@@ -599,6 +595,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser("benchmark", help="every method of every task on its held-out episodes: table and figure")
+    _benchmark_arguments(p, COUNT, OVERWRITE_HELP)
+    p.set_defaults(func=_cmd_benchmark)
 
     p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
     p.add_argument("--env", default=None, choices=ENV_CHOICES)
@@ -763,11 +763,11 @@ def _inputs(args: argparse.Namespace) -> list[Path]:
         if isinstance(value, Path):
             found.append(value)
     policy = getattr(args, "policy", None)
-    if isinstance(policy, str):
-        if policy.startswith("ppo:"):
-            found.append(Path(policy[4:]))
-        elif policy.endswith((".yaml", ".yml", ".json")):
-            found.append(Path(policy))
+    for spec in [policy] if isinstance(policy, str) else policy or []:
+        if spec.startswith("ppo:"):
+            found.append(Path(spec[4:]))
+        elif spec.endswith((".yaml", ".yml", ".json")):
+            found.append(Path(spec))
     return found
 
 

@@ -272,3 +272,33 @@ def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
     ax.axhline(0, color="k", lw=0.8)
     ax.grid(axis="y", alpha=0.3)
     return _save(fig, path)
+
+
+def plot_benchmark(summary: dict[str, Any], path: str | Path) -> Path:
+    """`cv2x-marl benchmark`: per task (one panel each) every method's IQM utility gain on the held-out
+    episodes with its 95 % bootstrap interval; the ceiling's IQM a dashed line (its interval shaded)."""
+    tasks = summary["tasks"]
+    import math
+
+    fig = Figure(figsize=(4.5 * len(tasks) + 0.5, 4.0), constrained_layout=True)
+    axes = fig.subplots(1, len(tasks), squeeze=False)
+    for ax, (name, task) in zip(axes[0], tasks.items(), strict=True):
+        rows = [(m, r) for m, r in task["methods"].items() if m != task["ceiling"]]
+        for i, (_, r) in enumerate(rows):
+            lo, hi = r["ci95_utility_gain"]
+            mid = r["iqm_utility_gain"]
+            ax.errorbar(
+                i, 100 * mid, yerr=[[100 * (mid - lo)], [100 * (hi - mid)]], fmt="o", color="#4e79a7", capsize=4
+            )
+        ceil = task["methods"].get(task["ceiling"])
+        if ceil is not None and all(math.isfinite(v) for v in (ceil["iqm_utility_gain"], *ceil["ci95_utility_gain"])):
+            ax.axhline(100 * ceil["iqm_utility_gain"], color="#e15759", ls="--", label=f"ceiling ({task['ceiling']})")
+            ax.axhspan(*(100 * v for v in ceil["ci95_utility_gain"]), color="#e15759", alpha=0.12)
+            ax.legend(fontsize=8, loc="lower right")
+        ax.set_xticks(range(len(rows)), [m for m, _ in rows], rotation=20, ha="right", fontsize=8)
+        ax.set_xlim(-0.6, len(rows) - 0.4)
+        ax.set_title(f"{name} ({task['env_id']}), {task['episodes']} held-out episodes", fontsize=9)
+        ax.set_ylabel("IQM utility gain (%), 95% CI")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.grid(axis="y", alpha=0.3)
+    return _save(fig, path)

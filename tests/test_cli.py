@@ -80,3 +80,36 @@ def test_counts_in_scientific_notation() -> None:
     from cv2x_marl.cli import COUNT
 
     assert COUNT("1e5") == 100_000 and COUNT("12") == 12
+
+
+def test_evaluate_seeds_report_iqm_and_intervals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["evaluate", "--policy", "gbmu", "--seeds", "3,4,5", "--json", "--quiet", "--out", str(tmp_path / "e")])
+    assert rc == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["seeds"] == [3, 4, 5] and summary["episodes"] == 3 and summary["runs"] == 1
+    lo, hi = summary["ci95_utility_gain"]
+    assert lo <= summary["iqm_utility_gain"] <= hi
+    assert json.loads((tmp_path / "e" / "summary.json").read_text())["iqm_utility_gain"] == summary["iqm_utility_gain"]
+    rc = main(["evaluate", "--policy", "static", "--seeds", "3,4", "--quiet"])
+    assert rc == 0
+    assert "IQM over 1 run(s) x 2 episodes (95% CI): utility gain +0.0% [+0.0%, +0.0%]" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["evaluate", "--env-option", "speed=1"], "unknown env argument 'speed'; allowed: preset, overrides"),
+        (["evaluate", "--env-option", "max_step_m=2"], "--env-option max_step_m: set it with --max-step"),
+        (["evaluate", "--seeds", "heldout", "--env", "cv2x/SingleMover-v1"], "is no task's env"),
+        (["evaluate", "--policy", "gbmu", "--policy", "static"], "several policies are the training runs"),
+        (["benchmark", "--out", "x", "--tasks", "traffic"], "task 'traffic' is not available: cv2x/Traffic-v0"),
+        (["benchmark", "--out", "x", "--model", "singlemover=gbmu"], "--model expects TASK=ppo:PATH"),
+    ],
+)
+def test_protocol_flags_refused_by_name(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "--quiet"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -2,16 +2,24 @@
 
 Episode k of seed S resets the env with ``derive_seeds(S, episodes)[k]``, which are also the
 snapshots of ``cv2x-marl gbmu --case realizations --seed S``, so the env results and the GBMU
-study are directly comparable.
+study are directly comparable. Given ``seeds`` (``--seeds``: a list, or a task's ``heldout`` /
+``train`` list of :mod:`cv2x_marl.env.tasks`), episode k resets with ``seeds[k]`` instead.
+
+The benchmark protocol (docs/benchmark.md): with ``seeds`` given or several policies (the training
+runs of one method), the summary adds the interquartile mean and the 95 % stratified bootstrap
+interval (:mod:`cv2x_marl.stats`) of the per-episode utility and PRR gains (and of the share of the
+ceiling with ``vs_optimum``), pooled over runs x episodes (:data:`PROTOCOL_KEYS`). Without them the
+summary and ``episodes.csv`` are what they always were.
 """
 
 from __future__ import annotations
 
 import csv
-import json
+import dataclasses
+import glob
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +30,7 @@ from cv2x_marl.env.mobility_env import MobilityEnv
 from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy
-from cv2x_marl.policies.baselines import is_baseline_file, load_baseline, make_baseline_policy
-from cv2x_marl.policies.optimum import OptimumPolicy, best_response_targets
+from cv2x_marl.policies.baselines import Baseline, is_baseline_file, load_baseline, make_baseline_policy
 from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
 from cv2x_marl.regression.model import PAPER_MODEL
 from cv2x_marl.runs import run_folder
@@ -33,6 +40,31 @@ from cv2x_marl.runs import run_folder
 MAX_ROWS = 1_000_000
 #: memory of one per-mover row (a dict of 12 values: 752 bytes measured, rounded up for the summary's arrays)
 ROW_BYTES = 1_000
+#: the summary keys the protocol adds (``seeds`` given or several runs)
+PROTOCOL_KEYS = (
+    "runs",
+    "seeds",
+    "iqm_utility_gain",
+    "ci95_utility_gain",
+    "iqm_prr_gain",
+    "ci95_prr_gain",
+    "iqm_share_of_optimum",
+    "ci95_share_of_optimum",
+    "bootstrap",
+)
+#: the seed of every bootstrap generator (a fresh ``default_rng(BOOTSTRAP_SEED)`` per statistic: the
+#: same scores give the same interval in `evaluate` and `benchmark`)
+BOOTSTRAP_SEED = 0
+#: the largest episode seed ``--seeds`` takes (32-bit, as the CLI's ``--seed``)
+MAX_SEED = 2**32 - 1
+#: env arguments the `evaluate` command sets with its own flags (``--env-option`` refuses them)
+EVALUATE_FLAGS = {
+    "preset": "--preset",
+    "overrides": "--set",
+    "max_cycles": "--max-cycles",
+    "max_step_m": "--max-step",
+    "replan_every": "--replan-every",
+}
 
 
 def episode_seeds(seed: int, n: int) -> Iterator[int]:
@@ -56,10 +88,86 @@ def check_episodes(episodes: int, movers: int) -> None:
         )
 
 
+def parse_seeds(text: str, env_id: str | None) -> tuple[int, ...]:
+    """``--seeds``: integers separated by commas or spaces, or ``heldout`` / ``train``: the lists of the
+    task whose env id is ``env_id`` (:mod:`cv2x_marl.env.tasks`). Repeated seeds are refused (the
+    statistics would count an episode twice)."""
+    from cv2x_marl.env import tasks
+
+    word = text.strip()
+    if word in ("heldout", "train"):
+        task = tasks.task_of_env(env_id) if env_id else None
+        if task is None:
+            named = ", ".join(f"{t.name}: {t.env_id}" for t in tasks.TASKS.values())
+            given = f"--env {env_id} is no task's env" if env_id else "give --env, a task's env"
+            raise ValueError(f"--seeds {word}: {given}; tasks: {named}")
+        return task.seeds(word)
+    try:
+        seeds = tuple(int(s) for s in word.replace(",", " ").split())
+    except ValueError:
+        raise ValueError(f"--seeds expects integers separated by commas, or heldout | train, got {text!r}") from None
+    if not seeds or any(s < 0 or s > MAX_SEED for s in seeds):
+        raise ValueError(f"--seeds must be integers in [0, {MAX_SEED}], or heldout | train, got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"--seeds: repeated seed in {text!r}")
+    return seeds
+
+
+def parse_env_options(items: Iterable[str], reserved: dict[str, str] | None = None) -> dict[str, Any]:
+    """``--env-option key=value`` items -> ``{key: value}``, values read as YAML scalars or flow lists
+    (``3`` -> 3, ``[0, 1]`` -> list, ``null`` -> None). Unknown keys are refused naming the allowed ones
+    (:class:`~cv2x_marl.env.options.EnvOptions`); the values are checked by the env when it is built.
+
+    Args:
+        items: the ``key=value`` texts.
+        reserved: keys another flag sets, ``{key: flag}``: refused naming the flag.
+    """
+    from cv2x_marl.env.options import EnvOptions
+    from cv2x_marl.yamlcore import YAMLError, parse_scalar
+
+    names = [f.name for f in dataclasses.fields(EnvOptions)]
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(f"--env-option expects key=value, got {item!r}")
+        if key not in names:
+            raise ValueError(f"--env-option: unknown env argument {key!r}; allowed: {', '.join(names)}")
+        if reserved and key in reserved:
+            raise ValueError(f"--env-option {key}: set it with {reserved[key]}")
+        if key in out:
+            raise ValueError(f"--env-option {key} given twice")
+        try:
+            out[key] = parse_scalar(value)
+        except YAMLError as exc:
+            raise ValueError(f"--env-option {key}: cannot parse {value!r}: {exc}") from exc
+    return out
+
+
+def expand_policies(specs: Sequence[str]) -> list[str]:
+    """Repeated ``--policy`` values, a ``ppo:`` pattern (``ppo:runs/seed*/model.zip``) expanded to its
+    sorted matches; a pattern that matches nothing is refused."""
+    out: list[str] = []
+    for spec in specs:
+        if spec.startswith(PPO_PREFIX) and glob.has_magic(spec[len(PPO_PREFIX) :]):
+            found = sorted(glob.glob(spec[len(PPO_PREFIX) :]))
+            if not found:
+                raise ValueError(f"--policy {spec}: no file matches the pattern")
+            out.extend(PPO_PREFIX + f for f in found)
+        else:
+            out.append(spec)
+    if len(set(out)) != len(out):
+        raise ValueError(f"--policy: a policy given twice in {out}")
+    return out
+
+
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
     """The env id and the options that shape observations, actions and dynamics of a model saved by
     ``cv2x-marl train`` (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3
     file). The reward options are not taken: every method is judged on the same utility."""
+    import json
+
     cfg_path = Path(path).parent / "train_config.json"
     if not cfg_path.exists():
         return None, {}
@@ -85,17 +193,63 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
         raise ValueError(f"cannot read the training configuration {cfg_path}: {exc}") from exc
 
 
-def optimum_utilities(env: MobilityEnv) -> np.ndarray:
-    """[N] every vehicle's utility (env units) with the movers at the optimum policy's targets."""
-    ref = OptimumPolicy(env)
-    movers = [int(i) for i in np.flatnonzero(env.mover_mask)]
-    targets = best_response_targets(env, movers, ref.rounds, ref.grid_m, ref.refine)
-    return env._utilities(env.links.success(targets), env.target)
+def optimum_utilities(env: MobilityEnv, ref: Any = None) -> np.ndarray:
+    """[N] every vehicle's utility (env units) with the movers at the ``optimum`` policy's targets
+    (``ref``: that policy, built once per env; its targets are those it drives to)."""
+    ref = make_policy("optimum", env) if ref is None else ref
+    ref.reset()
+    ref.act({})  # computes the episode's targets (the env at its reset)
+    return env._utilities(env.links.success(ref.targets_m), env.target)
+
+
+@dataclasses.dataclass
+class _Resolved:
+    """What a policy spec resolves to: its env and options, its model, its step, the files it reads."""
+
+    env_id: str | None
+    env_kwargs: dict[str, Any]
+    spec: Baseline | None
+    policy: str | Policy
+    model_path: str
+    delta: float
+    inputs: list[Path]
+
+
+def _resolve(
+    env_id: str | None, policy_spec: str | Policy, env_kwargs: dict[str, Any], model_path: str, delta: float
+) -> _Resolved:
+    spec = None
+    if isinstance(policy_spec, str) and is_baseline_file(policy_spec):  # baselines/NAME.yaml
+        spec = load_baseline(policy_spec)
+        env_id = env_id or spec.env_id
+        env_kwargs = {**spec.env, **env_kwargs}
+        policy_spec, model_path, delta = spec.policy, spec.model, spec.delta
+    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
+        trained_id, trained_env = trained_env_options(Path(policy_spec[len(PPO_PREFIX) :]))
+        env_id = env_id or trained_id
+        env_kwargs = {**trained_env, **env_kwargs}
+    inputs = [Path(model_path)]  # the files read: --out may not be, contain or lie inside one
+    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
+        inputs.append(Path(policy_spec[len(PPO_PREFIX) :]))
+    return _Resolved(env_id, env_kwargs, spec, policy_spec, model_path, delta, inputs)
+
+
+def names_of(specs: Sequence[str | Policy]) -> list[str]:
+    """The names of policy specs (a policy object: its ``name``)."""
+    return [s if isinstance(s, str) else s.name for s in specs]
+
+
+def _build(r: _Resolved, env: MobilityEnv) -> Policy:
+    if r.spec is not None:  # its model (a shipped name or a file) and its step schedule
+        return make_baseline_policy(r.spec, env)
+    if isinstance(r.policy, str):
+        return make_policy(r.policy, env, r.model_path, r.delta)
+    return r.policy
 
 
 def evaluate(
     env_id: str | None,
-    policy_spec: str | Policy,
+    policy_spec: str | Policy | Sequence[str | Policy],
     episodes: int,
     seed: int,
     out_dir: Path | None = None,
@@ -105,6 +259,7 @@ def evaluate(
     progress: bool = True,
     vs_optimum: bool = False,
     overwrite: bool = False,
+    seeds: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes and summarise per-mover gains (eq. 17), fairness and returns.
 
@@ -117,7 +272,13 @@ def evaluate(
             file names, else ``cv2x/SingleMover-v2``.
         policy_spec: a policy name (:func:`~cv2x_marl.policies.registry.make_policy`), ``ppo:PATH``, a baseline
             file (``baselines/NAME.yaml``, :mod:`cv2x_marl.policies.baselines`: its policy, model,
-            delta, env id and env options; ``env_kwargs`` override the latter) or a policy object.
+            delta, env id and env options; ``env_kwargs`` override the latter) or a policy object;
+            or a list of them: the training runs of one method (each on the same episodes, their
+            rows pooled; they must resolve to the same env id and options), ``episodes.csv`` then
+            has a ``run`` column.
+        episodes, seed: episode k resets with ``derive_seeds(seed, episodes)[k]`` (without ``seeds``).
+        seeds: the episode seeds themselves (``episodes`` and ``seed`` are then not used); the
+            summary adds the protocol's statistics (:data:`PROTOCOL_KEYS`).
         vs_optimum: also compute, on every episode, the utility at the optimum policy's targets
             (:mod:`cv2x_marl.policies.optimum`) and report ``share_of_optimum``: the method's mean
             utility gain over the optimum's on the same episodes.
@@ -125,81 +286,129 @@ def evaluate(
             ``summary.json``; None writes nothing.
         overwrite: replace a previous run in ``out_dir``.
     """
+    summary, _ = evaluate_rows(
+        env_id,
+        policy_spec,
+        episodes,
+        seed,
+        out_dir,
+        env_kwargs,
+        model_path=model_path,
+        delta=delta,
+        progress=progress,
+        vs_optimum=vs_optimum,
+        overwrite=overwrite,
+        seeds=seeds,
+    )
+    return summary
+
+
+def evaluate_rows(
+    env_id: str | None,
+    policy_spec: str | Policy | Sequence[str | Policy],
+    episodes: int,
+    seed: int,
+    out_dir: Path | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    model_path: str = PAPER_MODEL,
+    delta: float = 100.0,
+    progress: bool = True,
+    vs_optimum: bool = False,
+    overwrite: bool = False,
+    seeds: Sequence[int] | None = None,
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """:func:`evaluate`'s summary and its per-mover rows (those of ``episodes.csv``)."""
     from tqdm import tqdm
 
+    from cv2x_marl.env import tasks
+
+    if seeds is not None:
+        seeds = [int(s) for s in seeds]
+        if not seeds:
+            raise ValueError("--seeds: give at least one seed")
+        episodes = len(seeds)
     check_episodes(episodes, 1)  # the count itself; with the env's movers below
-    env_kwargs = dict(env_kwargs or {})
-    spec = None
-    if isinstance(policy_spec, str) and is_baseline_file(policy_spec):  # baselines/NAME.yaml
-        spec = load_baseline(policy_spec)
-        env_id = env_id or spec.env_id
-        env_kwargs = {**spec.env, **env_kwargs}
-        policy_spec, model_path, delta = spec.policy, spec.model, spec.delta
-    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
-        trained_id, trained_env = trained_env_options(Path(policy_spec[len(PPO_PREFIX) :]))
-        env_id = env_id or trained_id
-        env_kwargs = {**trained_env, **env_kwargs}
-    env_id = env_id or DEFAULT_ENV_ID
-    inputs = [Path(model_path)]  # the files read: --out may not be, contain or lie inside one
-    if isinstance(policy_spec, str) and policy_spec.startswith(PPO_PREFIX):
-        inputs.append(Path(policy_spec[len(PPO_PREFIX) :]))
-    env = make_parallel_env(env_id, **env_kwargs)
-    if spec is not None:  # its model (a shipped name or a file) and its step schedule
-        policy = make_baseline_policy(spec, env)
-    elif isinstance(policy_spec, str):
-        policy = make_policy(policy_spec, env, model_path, delta)
-    else:
-        policy = policy_spec
-        policy_spec = policy.name
+    several = isinstance(policy_spec, Sequence) and not isinstance(policy_spec, str)
+    specs: list[str | Policy] = list(policy_spec) if several else [policy_spec]  # type: ignore[arg-type,list-item]
+    if not specs:
+        raise ValueError("--policy: give at least one policy")
+    if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
+        raise ValueError(
+            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
+            f"got {names_of(specs)}"
+        )
+    resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
+    first = resolved[0]
+    for r in resolved[1:]:
+        if (r.env_id, r.env_kwargs) != (first.env_id, first.env_kwargs):
+            raise ValueError(
+                f"--policy: the runs of one evaluation must share the env; {r.policy} resolves to {r.env_id} "
+                f"{r.env_kwargs}, {first.policy} to {first.env_id} {first.env_kwargs}"
+            )
+    env_id = first.env_id or DEFAULT_ENV_ID
+    task = tasks.task_of_env(env_id)
+    for r in resolved:  # a policy the task cannot run: refused by name before the env is built
+        if task is not None and isinstance(r.policy, str):
+            task.check_policy(r.policy)
+    env = make_parallel_env(env_id, **first.env_kwargs)
+    policies = [_build(r, env) for r in resolved]
+    names = [r.policy if isinstance(r.policy, str) else p.name for r, p in zip(resolved, policies, strict=True)]
     movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
-    check_episodes(episodes, len(movers))
-    if vs_optimum:  # its search is refused here, before the run folder, when too large
-        OptimumPolicy(env)
-    params = {"env_id": env_id, "policy": str(policy_spec), "episodes": episodes, "seed": seed}
+    check_episodes(episodes * len(policies), len(movers))
+    ref = make_policy("optimum", env) if vs_optimum else None  # too large a search: refused here
+    protocol = seeds is not None or several
+    params: dict[str, Any] = {
+        "env_id": env_id,
+        "policy": names if several else names[0],
+        "episodes": episodes,
+        "seed": seed if seeds is None else None,
+    }
+    if seeds is not None:
+        params["seeds"] = seeds
+    inputs = [p for r in resolved for p in r.inputs]
     with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params, inputs=inputs):
         zero = np.zeros(2, dtype=np.float32)
         rows: list[dict[str, Any]] = []
+        optimum_cache: dict[int, np.ndarray] = {}
         t0 = time.perf_counter()
         steps = 0
-        for ep, ep_seed in enumerate(
-            tqdm(
-                episode_seeds(seed, episodes),
-                total=episodes,
-                desc=policy.name,
-                unit="ep",
-                file=sys.stderr,
-                disable=not progress,
-            )
-        ):
-            obs, infos = env.reset(seed=ep_seed)
-            policy.reset(ep_seed)
-            u_opt = optimum_utilities(env) if vs_optimum else None
-            returns = dict.fromkeys(movers, 0.0)
-            last = infos
-            while env.agents:
-                acts = policy.act({a: obs[a] for a in movers})
-                full = {a: acts.get(a, zero) for a in env.agents}
-                obs, rew, _, _, last = env.step(full)
-                steps += 1
+        for run, policy in enumerate(policies):
+            ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
+            bar = tqdm(ep_seeds, total=episodes, desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+            for ep, ep_seed in enumerate(bar):
+                obs, infos = env.reset(seed=ep_seed)
+                policy.reset(ep_seed)
+                if ref is not None and ep not in optimum_cache:
+                    optimum_cache[ep] = optimum_utilities(env, ref)
+                u_opt = optimum_cache.get(ep)
+                returns = dict.fromkeys(movers, 0.0)
+                last = infos
+                while env.agents:
+                    acts = policy.act({a: obs[a] for a in movers})
+                    full = {a: acts.get(a, zero) for a in env.agents}
+                    obs, rew, _, _, last = env.step(full)
+                    steps += 1
+                    for a in movers:
+                        returns[a] += rew[a]
                 for a in movers:
-                    returns[a] += rew[a]
-            for a in movers:
-                info = last[a]
-                rows.append(
-                    {
-                        "episode": ep,
-                        "seed": ep_seed,
-                        "agent": a,
-                        "utility_start": info["utility_start"],
-                        "utility_end": info["utility"],
-                        "prr_start": info["prr_start"],
-                        "prr_end": info["prr"],
-                        "jain_end": info["jain"],
-                        "return": returns[a],
-                    }
-                )
-                if u_opt is not None:
-                    rows[-1]["utility_optimum"] = float(u_opt[env.agent_index[a]])
+                    info = last[a]
+                    row: dict[str, Any] = {"run": run} if several else {}
+                    row.update(
+                        {
+                            "episode": ep,
+                            "seed": ep_seed,
+                            "agent": a,
+                            "utility_start": info["utility_start"],
+                            "utility_end": info["utility"],
+                            "prr_start": info["prr_start"],
+                            "prr_end": info["prr"],
+                            "jain_end": info["jain"],
+                            "return": returns[a],
+                        }
+                    )
+                    if u_opt is not None:
+                        row["utility_optimum"] = float(u_opt[env.agent_index[a]])
+                    rows.append(row)
         runtime = time.perf_counter() - t0
         u0 = np.array([r["utility_start"] for r in rows])
         u1 = np.array([r["utility_end"] for r in rows])
@@ -208,13 +417,13 @@ def evaluate(
         with np.errstate(divide="ignore", invalid="ignore"):
             ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
             pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
-        for r, a, b in zip(rows, ug, pg, strict=True):
-            r["utility_gain"], r["prr_gain"] = float(a), float(b)
+        for row, a, b in zip(rows, ug, pg, strict=True):
+            row["utility_gain"], row["prr_gain"] = float(a), float(b)
         summary: dict[str, Any] = {
             "env": env_id,
-            "policy": policy_spec,
+            "policy": names if several else names[0],
             "episodes": episodes,
-            "seed": seed,
+            "seed": seed if seeds is None else None,
             "movers_per_episode": len(movers),
             "mean_utility_gain": float(np.nanmean(ug)),
             "mean_prr_gain": float(np.nanmean(pg)),
@@ -233,18 +442,104 @@ def evaluate(
             uo = np.array([r["utility_optimum"] for r in rows])
             with np.errstate(divide="ignore", invalid="ignore"):
                 og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+            for row, g in zip(rows, og, strict=True):
+                row["optimum_gain"] = float(g)
             summary["optimum_utility_gain"] = float(np.nanmean(og))
             summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
             summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+        if protocol:
+            summary.update(protocol_summary(rows, len(policies), episodes, vs_optimum))
+            summary["seeds"] = seeds
         if out_dir is not None:
             out_dir = Path(out_dir)
+            fields = [k for k in rows[0] if k != "optimum_gain"]
 
             def write(tmp: Path) -> None:
                 with tmp.open("w", newline="") as fh:
-                    w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+                    w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
                     w.writeheader()
                     w.writerows(rows)
 
             atomic_write(out_dir / "episodes.csv", write)
             write_json(out_dir / "summary.json", summary)
-        return summary
+        return summary, rows
+
+
+def episode_means(rows: Sequence[dict[str, Any]], key: str, runs: int, episodes: int) -> np.ndarray:
+    """[runs, episodes] the mean of ``key`` over each episode's movers (NaN values left out; NaN when
+    every mover's is). Rows without a ``run`` are run 0."""
+    total = np.zeros((runs, episodes))
+    count = np.zeros((runs, episodes))
+    for r in rows:
+        v = float(r[key])
+        if np.isfinite(v):
+            i, j = int(r.get("run", 0)), int(r["episode"])
+            total[i, j] += v
+            count[i, j] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)
+
+
+def interval(scores: np.ndarray) -> tuple[float, list[float]]:
+    """The protocol's IQM of ``scores`` [runs, episodes] and its 95 % stratified bootstrap interval
+    (:func:`cv2x_marl.stats.bootstrap_ci`, 2000 resamples, generator ``default_rng(BOOTSTRAP_SEED)``)."""
+    from cv2x_marl import stats
+
+    point, lo, hi = stats.bootstrap_ci(scores, np.random.default_rng(BOOTSTRAP_SEED))
+    return point, [lo, hi]
+
+
+def protocol_summary(
+    rows: Sequence[dict[str, Any]], runs: int, episodes: int, vs_optimum: bool = False
+) -> dict[str, Any]:
+    """The protocol's statistics over runs x episodes: IQM and 95 % CI of the per-episode utility and
+    PRR gains (each the mean over the episode's movers of eq. 17) and, with ``vs_optimum``, of the
+    per-episode share of the optimum (the episode's gain over the optimum's gain on it)."""
+    from cv2x_marl import stats
+
+    out: dict[str, Any] = {"runs": runs}
+    ug = episode_means(rows, "utility_gain", runs, episodes)
+    out["iqm_utility_gain"], out["ci95_utility_gain"] = interval(ug)
+    out["iqm_prr_gain"], out["ci95_prr_gain"] = interval(episode_means(rows, "prr_gain", runs, episodes))
+    if vs_optimum:
+        og = episode_means(rows, "optimum_gain", runs, episodes)[:1]  # the same on every run
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(og != 0, ug / og, np.nan)
+        out["iqm_share_of_optimum"], out["ci95_share_of_optimum"] = interval(share)
+    out["bootstrap"] = {
+        "statistic": "iqm",
+        "resamples": stats.N_RESAMPLES,
+        "level": stats.LEVEL,
+        "seed": BOOTSTRAP_SEED,
+        "resampled": "runs and episodes (crossed), docs/benchmark.md",
+    }
+    return out
+
+
+def format_summary(summary: dict[str, Any], label: str | None = None) -> str:
+    """The summary as `cv2x-marl evaluate` prints it (``label``: the policy as given; default the summary's)."""
+    policy = summary["policy"]
+    label = label or (", ".join(policy) if isinstance(policy, list) else str(policy))
+    share = f", {summary['share_of_optimum']:.1%} of the optimum's gain" if "share_of_optimum" in summary else ""
+    text = (
+        f"{label} on {summary['env']}, {summary['episodes']} episodes x "
+        f"{summary['movers_per_episode']} movers: "
+        f"utility gain {summary['mean_utility_gain']:+.1%}, PRR gain {summary['mean_prr_gain']:+.1%}, "
+        f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
+        f"return {summary['mean_return']:.1f}{share}"
+    )
+    if "iqm_utility_gain" in summary:
+        parts = [
+            ("utility gain", "utility_gain"),
+            ("PRR gain", "prr_gain"),
+            ("share of the optimum", "share_of_optimum"),
+        ]
+        sign = {"share_of_optimum": ""}
+        shown = []
+        for name, key in parts:
+            if "iqm_" + key in summary:
+                f = "{:" + sign.get(key, "+") + ".1%}"
+                lo, hi = summary["ci95_" + key]
+                shown.append(f"{name} {f.format(summary['iqm_' + key])} [{f.format(lo)}, {f.format(hi)}]")
+        text += f"\nIQM over {summary['runs']} run(s) x {summary['episodes']} episodes (95% CI): " + ", ".join(shown)
+    return text

@@ -1,0 +1,181 @@
+"""The benchmark's tasks (issue 27, docs/benchmark.md): per task its env id, its fixed env options, the
+scripted methods that apply, its ceiling, its training and held-out episode seeds, and the policies it
+refuses.
+
+    singlemover   cv2x/SingleMover-v3   one mover (Gymnasium), plan-free observation, shadowing that follows it
+    cooperative   cv2x/Cooperative-v0   every vehicle moves (PettingZoo), reward = the team objective
+    traffic       cv2x/Traffic-v0       not built yet (:data:`PENDING_TASKS`)
+
+The episode seeds are package constants, drawn once at import from named ``SeedSequence`` s
+(:data:`PROTOCOL_ENTROPY`, the task's name, the list's kind), so they are the same on every machine
+and in every version of the package; a learner trains on :attr:`Task.train_seeds` only and is scored
+on :attr:`Task.heldout_seeds`, a disjoint list. The seed of an episode draws its scenario (density,
+placement, SPS state: the env's ``reset(seed=...)``).
+
+A task is available when its env id is registered (:data:`cv2x_marl.env.registry.ENV_IDS`).
+
+This module imports numpy and the registry only (no env code).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from cv2x_marl.env.registry import ENV_IDS
+
+#: the env ids of the tasks, in one place (issue 27's new ids; tests stand them in with the v2 ids
+#: until those are registered)
+TASK_ENV_IDS: Mapping[str, str] = MappingProxyType(
+    {"singlemover": "cv2x/SingleMover-v3", "cooperative": "cv2x/Cooperative-v0"}
+)
+#: tasks of issue 27 not built yet: name -> what is missing (refused by name, never run)
+# TODO(issue 27, item 1): cv2x/Traffic-v0 (vehicles drive, speed / lane actions, a privileged planner as
+# its ceiling); its methods: static, random, gbmu projected on the road, sensing on the road.
+PENDING_TASKS: Mapping[str, str] = MappingProxyType(
+    {"traffic": "cv2x/Traffic-v0 (driving vehicles, speed and lane actions) is not built yet"}
+)
+#: the root entropy of every task's seed lists (issue 27's protocol; never change it: it defines them)
+PROTOCOL_ENTROPY = 2027_0027
+#: episodes of each held-out list
+N_HELDOUT = 48
+#: episodes of each training list
+N_TRAIN = 4096
+#: the fixed env options of every task: the CLI's `evaluate` defaults (paper preset, 100 steps of 5 m)
+BASE_OPTIONS: Mapping[str, Any] = MappingProxyType({"preset": "paper", "max_cycles": 100, "max_step_m": 5.0})
+#: the scripted methods every offset-action task runs (docs/benchmark.md)
+SCRIPTED_METHODS = ("static", "random", "gbmu", "sensing")
+#: the ceiling's policy name (``--policy optimum``: the task's privileged search)
+CEILING = "optimum"
+
+
+def seed_list(task: str, kind: str, n: int, exclude: tuple[int, ...] = ()) -> tuple[int, ...]:
+    """``n`` distinct 32-bit episode seeds of list ``kind`` (``train`` | ``heldout``) of ``task``, none
+    in ``exclude``: the state of ``SeedSequence(PROTOCOL_ENTROPY, spawn_key=(crc32(task), k))`` (k = 0
+    held-out, 1 training), in order, repeats and excluded values skipped."""
+    kinds = ("heldout", "train")
+    if kind not in kinds:
+        raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
+    ss = np.random.SeedSequence(PROTOCOL_ENTROPY, spawn_key=(zlib.crc32(task.encode()), kinds.index(kind)))
+    words = ss.generate_state(n + 64 + len(exclude), dtype=np.uint32)
+    out: list[int] = []
+    seen = set(exclude)
+    for w in words.tolist():
+        if w not in seen:
+            seen.add(w)
+            out.append(int(w))
+            if len(out) == n:
+                return tuple(out)
+    raise AssertionError("unreachable: 64 spare words cover the repeats")  # pragma: no cover
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task of the benchmark.
+
+    Attributes:
+        name: the task's name (``--tasks``).
+        env_id: its env id (:data:`TASK_ENV_IDS`).
+        options: env options fixed by the task (passed to the env; ``--env-option`` may not change them
+            in ``cv2x-marl benchmark``).
+        methods: the scripted methods the benchmark runs on it, its ceiling excluded.
+        ceiling: the policy whose utility gain is the task's 100 % (``share_of_optimum``).
+        refused: policy name -> why the task refuses it (a policy that cannot act in its action space).
+        train_seeds: training episode seeds (:data:`N_TRAIN`).
+        heldout_seeds: held-out episode seeds (:data:`N_HELDOUT`), disjoint from the training ones.
+    """
+
+    name: str
+    env_id: str
+    options: Mapping[str, Any]
+    methods: tuple[str, ...]
+    ceiling: str = CEILING
+    refused: Mapping[str, str] = field(default_factory=dict)
+    train_seeds: tuple[int, ...] = ()
+    heldout_seeds: tuple[int, ...] = ()
+
+    @property
+    def available(self) -> bool:
+        """Whether the env id is registered in this version of the package."""
+        return self.env_id in ENV_IDS
+
+    def seeds(self, which: str) -> tuple[int, ...]:
+        """The ``train`` or ``heldout`` list."""
+        if which == "train":
+            return self.train_seeds
+        if which == "heldout":
+            return self.heldout_seeds
+        raise ValueError(f"seed list must be train or heldout, got {which!r}")
+
+    def check_policy(self, spec: str) -> None:
+        """Refuse a policy the task cannot run (:attr:`refused`), naming it, the task and the allowed ones.
+
+        Args:
+            spec: a policy name or ``ppo:PATH`` (learned models act in every task's action space they
+                were trained on; the env checks the observation and action shapes when it loads them).
+        """
+        if spec in self.refused:
+            allowed = [m for m in (*self.methods, self.ceiling) if m not in self.refused]
+            raise ValueError(
+                f"policy {spec!r} cannot run on task {self.name} ({self.env_id}): {self.refused[spec]}; "
+                f"allowed: {', '.join(allowed)}, ppo:PATH"
+            )
+
+
+def make_task(
+    name: str,
+    env_id: str,
+    methods: tuple[str, ...],
+    refused: Mapping[str, str] | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> Task:
+    """A :class:`Task` with its seed lists (:func:`seed_list`; the held-out list first, the training
+    list drawn disjoint from it)."""
+    held = seed_list(name, "heldout", N_HELDOUT)
+    train = seed_list(name, "train", N_TRAIN, exclude=held)
+    return Task(
+        name=name,
+        env_id=env_id,
+        options=MappingProxyType(dict(BASE_OPTIONS if options is None else options)),
+        methods=methods,
+        refused=MappingProxyType(dict(refused or {})),
+        train_seeds=train,
+        heldout_seeds=held,
+    )
+
+
+#: the tasks, by name (docs/benchmark.md); the pending ones (:data:`PENDING_TASKS`) are not here
+TASKS: Mapping[str, Task] = MappingProxyType(
+    {
+        "singlemover": make_task(
+            "singlemover",
+            TASK_ENV_IDS["singlemover"],
+            SCRIPTED_METHODS,
+            refused={"best-response": "one mover: its best response is the ceiling, run `optimum`"},
+        ),
+        "cooperative": make_task("cooperative", TASK_ENV_IDS["cooperative"], (*SCRIPTED_METHODS, "best-response")),
+    }
+)
+
+
+def get_task(name: str, tasks: Mapping[str, Task] | None = None) -> Task:
+    """The task ``name`` of ``tasks`` (default :data:`TASKS`); a pending or unknown name is refused."""
+    tasks = TASKS if tasks is None else tasks
+    if name in tasks:
+        return tasks[name]
+    if name in PENDING_TASKS:
+        raise ValueError(f"task {name!r} is not available: {PENDING_TASKS[name]}; tasks: {', '.join(tasks)}")
+    raise ValueError(f"unknown task {name!r}; tasks: {', '.join(tasks)}")
+
+
+def task_of_env(env_id: str, tasks: Mapping[str, Task] | None = None) -> Task | None:
+    """The task whose env id is ``env_id`` (None: no task's)."""
+    for task in (TASKS if tasks is None else tasks).values():
+        if task.env_id == env_id:
+            return task
+    return None

@@ -1,0 +1,391 @@
+"""`cv2x-marl benchmark`: every method of every task on the task's held-out episodes (docs/benchmark.md).
+
+Per task (:mod:`cv2x_marl.env.tasks`) the scripted methods, its ceiling (always run: the shares need
+it) and any learned models given (``--model TASK=ppo:PATH``, repeated or a glob for several training
+runs) are evaluated on the task's held-out seeds by :func:`cv2x_marl.experiments.evaluate.evaluate_rows`,
+the loop of `cv2x-marl evaluate` (a method's numbers are those of ``cv2x-marl evaluate --env ID
+--policy METHOD --seeds heldout``). Each (task, method, run) is one job; with ``workers > 1`` or an
+``address`` the jobs run as Ray tasks (:func:`cv2x_marl.parallel.ray_session`: an embedded local Ray
+of ``workers`` CPUs, or the cluster at ``address``), else in this process (no Ray import).
+
+The run folder (:mod:`cv2x_marl.runs`) receives ``benchmark.csv`` (one row per task, method, run and
+episode: the means over the episode's movers), ``summary.json`` (per task and method the IQM and 95 %
+stratified bootstrap interval of the utility gain and of the share of the ceiling, the mean PRR; and
+per method present in every task the share of the ceiling aggregated over the tasks, the tasks as
+strata), ``table.md`` and ``benchmark.png``.
+
+This module imports only the standard library at its top (the CLI builds its parser from it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.tasks import Task
+
+#: the per-episode columns of ``benchmark.csv`` (means over the episode's movers)
+CSV_FIELDS = (
+    "task",
+    "env_id",
+    "method",
+    "run",
+    "policy",
+    "episode",
+    "seed",
+    "utility_start",
+    "utility_end",
+    "utility_gain",
+    "prr_start",
+    "prr_end",
+    "prr_gain",
+    "ceiling_gain",
+    "share_of_ceiling",
+)
+#: the default label of a learned model given without one
+LEARNED = "ppo"
+
+
+def parse_models(items: Sequence[str], tasks: Mapping[str, Task]) -> dict[str, dict[str, list[str]]]:
+    """``--model TASK=ppo:PATH`` / ``TASK/LABEL=ppo:PATH`` items -> ``{task: {label: [ppo:PATH, ...]}}``
+    (a label's several paths, or a glob's matches, are the training runs of one method)."""
+    from cv2x_marl.experiments.evaluate import expand_policies
+    from cv2x_marl.policies.registry import PPO_PREFIX
+
+    out: dict[str, dict[str, list[str]]] = {}
+    for item in items:
+        key, sep, spec = item.partition("=")
+        task, _, label = key.partition("/")
+        label = label or LEARNED
+        if not sep or not spec.startswith(PPO_PREFIX):
+            raise ValueError(f"--model expects TASK=ppo:PATH or TASK/LABEL=ppo:PATH, got {item!r}")
+        if task not in tasks:
+            raise ValueError(f"--model {item}: unknown task {task!r}; tasks: {', '.join(tasks)}")
+        out.setdefault(task, {}).setdefault(label, []).extend(expand_policies([spec]))
+    for task, labels in out.items():
+        for label, specs in labels.items():
+            if len(set(specs)) != len(specs):
+                raise ValueError(f"--model {task}/{label}: a model given twice")
+            for s in specs:
+                if not Path(s[len(PPO_PREFIX) :]).is_file():
+                    raise ValueError(f"--model {task}/{label}: no model file {s[len(PPO_PREFIX) :]}")
+    return out
+
+
+def plan_jobs(
+    tasks: Mapping[str, Task],
+    names: Sequence[str] | None,
+    methods: Sequence[str] | None,
+    models: Mapping[str, Mapping[str, list[str]]],
+    episodes: int | None,
+) -> list[dict[str, Any]]:
+    """One job per task, method and run, checked before anything runs: available tasks, methods
+    each task accepts (its refusals, names :func:`~cv2x_marl.policies.registry.make_policy` knows,
+    searches it can afford: each task's env and policies are built once here)."""
+    from cv2x_marl.env.registry import make_parallel_env
+    from cv2x_marl.env.tasks import get_task
+    from cv2x_marl.policies.registry import make_policy
+
+    chosen = [get_task(n, tasks) for n in (names or list(tasks))]
+    if len({t.name for t in chosen}) != len(chosen):
+        raise ValueError(f"--tasks: a task given twice in {list(names or [])}")
+    missing = [f"{t.name} ({t.env_id})" for t in chosen if not t.available]
+    if missing:
+        raise ValueError(
+            f"task(s) {', '.join(missing)} not available in this version (their env ids are not registered)"
+        )
+    if episodes is not None and (isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1):
+        raise ValueError(f"--episodes must be an integer >= 1, got {episodes!r}")
+    jobs: list[dict[str, Any]] = []
+    for task in chosen:
+        seeds = list(task.heldout_seeds[:episodes] if episodes else task.heldout_seeds)
+        wanted = list(methods) if methods else list(task.methods)
+        unknown = [m for m in wanted if m not in (*task.methods, task.ceiling)]
+        for m in wanted:
+            task.check_policy(m)
+        if unknown:
+            raise ValueError(
+                f"--methods {', '.join(unknown)}: not a method of task {task.name}; its methods: "
+                f"{', '.join((*task.methods, task.ceiling))} (learned models: --model)"
+            )
+        if task.ceiling not in wanted:
+            wanted.append(task.ceiling)
+        env = make_parallel_env(task.env_id, **task.options)
+        for m in wanted:
+            make_policy(m, env)  # an unknown name or too large a search: refused here
+        runs = {m: [m] for m in wanted}
+        for label, specs in models.get(task.name, {}).items():
+            if label in runs:
+                raise ValueError(f"--model {task.name}/{label}: the label names a scripted method; choose another")
+            runs[label] = list(specs)
+        for method, specs in runs.items():
+            for run, spec in enumerate(specs):
+                jobs.append(
+                    {
+                        "task": task.name,
+                        "env_id": task.env_id,
+                        "options": dict(task.options),
+                        "method": method,
+                        "run": run,
+                        "policy": spec,
+                        "seeds": seeds,
+                    }
+                )
+    return jobs
+
+
+def run_job(job: dict[str, Any]) -> list[dict[str, Any]]:
+    """One (task, method, run) on its seeds: per episode the means over the movers (a Ray task)."""
+    from cv2x_marl.experiments.evaluate import episode_means, evaluate_rows
+
+    seeds = job["seeds"]
+    _, rows = evaluate_rows(
+        job["env_id"], job["policy"], len(seeds), 0, None, dict(job["options"]), progress=False, seeds=seeds
+    )
+    keys = ("utility_start", "utility_end", "utility_gain", "prr_start", "prr_end", "prr_gain")
+    means = {k: episode_means(rows, k, 1, len(seeds))[0] for k in keys}
+    base = {k: job[k] for k in ("task", "env_id", "method", "run", "policy")}
+    return [{**base, "episode": e, "seed": s, **{k: float(means[k][e]) for k in keys}} for e, s in enumerate(seeds)]
+
+
+def _execute(
+    jobs: list[dict[str, Any]], workers: int, address: str | None, progress: bool
+) -> list[list[dict[str, Any]]]:
+    """Every job's rows, in job order: here (one worker, no address) or as Ray tasks."""
+    from tqdm import tqdm
+
+    total = sum(len(j["seeds"]) for j in jobs)
+    with tqdm(total=total, desc="benchmark", unit="ep", file=sys.stderr, disable=not progress) as bar:
+        if workers == 1 and address is None:
+            out = []
+            for job in jobs:
+                bar.set_postfix_str(f"{job['task']}/{job['method']}", refresh=False)
+                out.append(run_job(job))
+                bar.update(len(job["seeds"]))
+            return out
+        from cv2x_marl.parallel import ray_session
+
+        with ray_session(address, num_cpus=None if address else workers) as ray:
+            remote = ray.remote(num_cpus=1)(run_job)
+            refs = [remote.remote(j) for j in jobs]
+            index = {r: i for i, r in enumerate(refs)}
+            results: list[list[dict[str, Any]] | None] = [None] * len(jobs)
+            pending = list(refs)
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    results[index[ref]] = ray.get(ref)
+                    bar.update(len(jobs[index[ref]]["seeds"]))
+            return [r for r in results if r is not None]
+
+
+def summarise(rows: list[dict[str, Any]], tasks: Mapping[str, Task]) -> dict[str, Any]:
+    """Per task and method the protocol's statistics from the episode rows (which gain their
+    ``ceiling_gain`` and ``share_of_ceiling`` here); per method in every task the aggregate share."""
+    import numpy as np
+
+    from cv2x_marl import stats
+    from cv2x_marl.experiments.evaluate import BOOTSTRAP_SEED, interval
+
+    out: dict[str, Any] = {"tasks": {}}
+    shares: dict[str, dict[str, np.ndarray]] = {}
+    for name in dict.fromkeys(r["task"] for r in rows):
+        task = tasks[name]
+        mine = [r for r in rows if r["task"] == name]
+        episodes = max(r["episode"] for r in mine) + 1
+        ceiling = np.full(episodes, np.nan)
+        for r in mine:
+            if r["method"] == task.ceiling and r["run"] == 0:
+                ceiling[r["episode"]] = r["utility_gain"]
+        for r in mine:
+            c = ceiling[r["episode"]]
+            r["ceiling_gain"] = float(c)
+            r["share_of_ceiling"] = float(r["utility_gain"] / c) if c != 0 and np.isfinite(c) else float("nan")
+        methods: dict[str, Any] = {}
+        for method in dict.fromkeys(r["method"] for r in mine):
+            sel = [r for r in mine if r["method"] == method]
+            runs = max(r["run"] for r in sel) + 1
+            grid = {k: np.full((runs, episodes), np.nan) for k in ("utility_gain", "share_of_ceiling", "prr_end")}
+            for r in sel:
+                for k, g in grid.items():
+                    g[r["run"], r["episode"]] = r[k]
+            shares.setdefault(method, {})[name] = grid["share_of_ceiling"]
+            entry: dict[str, Any] = {"runs": runs, "episodes": episodes, "policy": sel[0]["policy"]}
+            entry["iqm_utility_gain"], entry["ci95_utility_gain"] = interval(grid["utility_gain"])
+            entry["iqm_share_of_ceiling"], entry["ci95_share_of_ceiling"] = interval(grid["share_of_ceiling"])
+            entry["mean_utility_gain"] = float(np.nanmean(grid["utility_gain"]))
+            entry["mean_prr"] = float(np.nanmean(grid["prr_end"]))
+            methods[method] = entry
+        out["tasks"][name] = {
+            "env_id": task.env_id,
+            "ceiling": task.ceiling,
+            "episodes": episodes,
+            "seeds": [r["seed"] for r in mine if r["method"] == task.ceiling and r["run"] == 0],
+            "methods": methods,
+        }
+    if len(out["tasks"]) > 1:  # rliable's aggregate: the tasks are the strata
+        agg = {}
+        for method, per_task in shares.items():
+            if set(per_task) == set(out["tasks"]):
+                point, lo, hi = stats.bootstrap_ci(list(per_task.values()), np.random.default_rng(BOOTSTRAP_SEED))
+                agg[method] = {"iqm_share_of_ceiling": point, "ci95_share_of_ceiling": [lo, hi]}
+        out["all_tasks"] = agg
+    out["bootstrap"] = {
+        "statistic": "iqm",
+        "resamples": stats.N_RESAMPLES,
+        "level": stats.LEVEL,
+        "seed": BOOTSTRAP_SEED,
+        "resampled": "runs and episodes (crossed) within each task; tasks are strata",
+    }
+    return out
+
+
+def _pct(v: float, sign: str = "+") -> str:
+    """A fraction as a percentage of one decimal (``n/a`` for NaN)."""
+    return "n/a" if v != v else format(100 * v, sign + ".1f")
+
+
+def _ci(ci: Sequence[float], sign: str = "+") -> str:
+    return "n/a" if ci[0] != ci[0] else f"[{_pct(ci[0], sign)}, {_pct(ci[1], sign)}]"
+
+
+def table_markdown(summary: dict[str, Any]) -> str:
+    """``table.md``: per task one table of its methods (IQM and 95 % CI of the utility gain and of the
+    share of the ceiling, in %, and the mean PRR at the end of the episodes)."""
+    lines = []
+    for name, task in summary["tasks"].items():
+        lines += [
+            f"### {name} (`{task['env_id']}`), {task['episodes']} held-out episodes, ceiling `{task['ceiling']}`",
+            "",
+            "| method | runs | utility gain, IQM (%) | 95 % CI | share of the ceiling, IQM (%) | 95 % CI | mean PRR |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for method, m in task["methods"].items():
+            lines.append(
+                f"| {method} | {m['runs']} | {_pct(m['iqm_utility_gain'])} | {_ci(m['ci95_utility_gain'])} | "
+                f"{_pct(m['iqm_share_of_ceiling'], '')} | {_ci(m['ci95_share_of_ceiling'], '')} | {m['mean_prr']:.4f} |"
+            )
+        lines.append("")
+    if summary.get("all_tasks"):
+        lines += [
+            "### All tasks (share of the ceiling, the tasks as strata)",
+            "",
+            "| method | IQM (%) | 95 % CI |",
+            "|---|---|---|",
+        ]
+        for method, m in summary["all_tasks"].items():
+            lines.append(
+                f"| {method} | {_pct(m['iqm_share_of_ceiling'], '')} | {_ci(m['ci95_share_of_ceiling'], '')} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def run_benchmark(
+    out_dir: Path,
+    tasks: Sequence[str] | None = None,
+    methods: Sequence[str] | None = None,
+    models: Sequence[str] = (),
+    episodes: int | None = None,
+    workers: int = 1,
+    address: str | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+    task_table: Mapping[str, Task] | None = None,
+) -> dict[str, Any]:
+    """Run the benchmark into the run folder ``out_dir``; returns ``summary.json``'s content.
+
+    Args:
+        tasks: task names (default: every task of ``task_table``).
+        methods: scripted methods (default: each task's); the ceiling is always run.
+        models: ``TASK=ppo:PATH`` / ``TASK/LABEL=ppo:PATH`` (:func:`parse_models`).
+        episodes: only the first ``episodes`` held-out seeds (quick runs; None: all).
+        workers: parallel jobs (> 1: an embedded local Ray of that many CPUs); address: a Ray cluster.
+        task_table: the tasks (default :data:`cv2x_marl.env.tasks.TASKS`).
+    """
+    from cv2x_marl.env import tasks as task_module
+    from cv2x_marl.io import atomic_write, write_json
+    from cv2x_marl.runs import run_folder
+
+    table = task_module.TASKS if task_table is None else task_table
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
+    jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes)
+    params = {
+        "tasks": list(dict.fromkeys(j["task"] for j in jobs)),
+        "methods": list(methods or []),
+        "episodes": episodes,
+    }
+    params["models"] = list(models)
+    inputs = [Path(j["policy"][4:]) for j in jobs if j["policy"].startswith("ppo:")]
+    with run_folder(out_dir, "benchmark", overwrite=overwrite, parameters=params, inputs=inputs):
+        t0 = time.perf_counter()
+        rows = [r for part in _execute(jobs, workers, address, progress) for r in part]
+        summary = summarise(rows, table)
+        summary["wall_s"] = time.perf_counter() - t0
+        out = Path(out_dir)
+
+        def write_csv(tmp: Path) -> None:
+            with tmp.open("w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
+                w.writeheader()
+                w.writerows(rows)
+
+        atomic_write(out / "benchmark.csv", write_csv)
+        write_json(out / "summary.json", summary)
+        atomic_write(out / "table.md", lambda tmp: tmp.write_text(table_markdown(summary)))
+        from cv2x_marl.plotting import plot_benchmark
+
+        plot_benchmark(summary, out / "benchmark.png")
+    return summary
+
+
+def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overwrite_help: str) -> None:
+    """The ``cv2x-marl benchmark`` flags (``count``: the CLI's integer >= 1 type)."""
+    p.add_argument("--out", type=Path, required=True, help="run folder: benchmark.csv, summary.json, table.md, .png")
+    p.add_argument("--tasks", help="tasks, comma-separated (default: every task: singlemover, cooperative)")
+    p.add_argument("--methods", help="scripted methods, comma-separated (default: each task's; the ceiling always)")
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="TASK[/LABEL]=ppo:PATH",
+        help="a learned model on a task (repeatable; several paths or a glob under one label: its training runs)",
+    )
+    p.add_argument("--episodes", type=count, default=None, help="only the first N held-out seeds (quick runs)")
+    p.add_argument("--workers", type=count, default=1, help="parallel jobs (> 1: a local Ray; default 1, no Ray)")
+    p.add_argument("--address", help="Ray cluster address (auto, ray://HOST:10001); default: a local Ray")
+    p.add_argument("--overwrite", action="store_true", help=overwrite_help)
+    p.add_argument("--json", action="store_true", help="print summary.json")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """``cv2x-marl benchmark``."""
+    from cv2x_marl.io import dumps_json
+
+    def split(text: str | None) -> list[str] | None:
+        return [s.strip() for s in text.split(",") if s.strip()] if text else None
+
+    summary = run_benchmark(
+        args.out,
+        split(args.tasks),
+        split(args.methods),
+        args.model or [],
+        args.episodes,
+        args.workers,
+        args.address,
+        args.overwrite,
+        not args.quiet,
+    )
+    if args.json:
+        sys.stdout.write(dumps_json(summary) + "\n")
+    else:
+        sys.stdout.write(table_markdown(summary))
+        print(f"wrote {args.out / 'benchmark.csv'}, summary.json, table.md, benchmark.png ({summary['wall_s']:.0f} s)")
+    return 0
