@@ -34,7 +34,7 @@ from cv2x_marl.io import write_json  # noqa: E402
 
 
 def ppo_steps_per_s(vec: Any, cfg: Any, timesteps: int, seed: int) -> float:
-    from cv2x_marl.env.mobility_env import _START_CACHE
+    from cv2x_marl.env.starts import START_CACHE as _START_CACHE
     from cv2x_marl.rl.train import make_ppo
 
     _START_CACHE.clear()  # every timed run pays for its own start pool (with --start-pool)

@@ -8,9 +8,7 @@ outcomes in ``traffic`` mode), never with the regression model.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -20,6 +18,7 @@ from numpy.typing import NDArray
 from pettingzoo import ParallelEnv
 
 from cv2x_marl.config import ConfigError, ScenarioConfig
+from cv2x_marl.env import starts
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env.measurement import Measurements, scaled_rsrp
 from cv2x_marl.env.observation import (
@@ -116,6 +115,8 @@ class MobilityEnv(ParallelEnv):
         shadow_field: shadowing that follows the vehicles (:mod:`cv2x_marl.sim.shadow_field`).
         sensing_window: observation 3: periods of the RSRP average (:mod:`cv2x_marl.env.measurement`).
         rsrp_error_db: observation 3: standard deviation of the RSRP report error (dB).
+        start_pool: ``reset()`` without a seed starts from one of the first ``start_pool`` seeds of the
+            protocol's training list, their starts kept (:mod:`cv2x_marl.env.starts`); 0: fresh seeds.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -157,6 +158,7 @@ class MobilityEnv(ParallelEnv):
         shadow_field: bool = False,
         sensing_window: int = 10,
         rsrp_error_db: float = 3.0,
+        start_pool: int = 0,
     ) -> None:
         opts = EnvOptions(
             preset=preset, overrides=overrides, config=config, mode=mode, max_cycles=max_cycles,
@@ -166,7 +168,7 @@ class MobilityEnv(ParallelEnv):
             privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
             action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
             team_objective=team_objective, shadow_field=shadow_field, sensing_window=sensing_window,
-            rsrp_error_db=rsrp_error_db,
+            rsrp_error_db=rsrp_error_db, start_pool=start_pool,
         )  # fmt: skip
         cfg = opts.scenario()
         road = Road.from_config(cfg.road)
@@ -204,8 +206,10 @@ class MobilityEnv(ParallelEnv):
         self.replan_every = replan_every
         self.action_mode = action_mode
         self.settle_steps = settle_steps
-        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :func:`_cached_start`
+        #: starts kept in the process-wide cache of :meth:`reset` (0: none); see :mod:`cv2x_marl.env.starts`
         self.reset_cache = int(reset_cache)
+        #: ``reset()`` without a seed draws from the first ``start_pool`` training seeds (0: fresh seeds)
+        self.start_pool = int(start_pool)
         self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
         self.agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.mover_mask = np.ones(self.n, dtype=bool)
@@ -267,9 +271,13 @@ class MobilityEnv(ParallelEnv):
         else:
             if self._np_random is None:
                 self._np_random = np.random.default_rng()
-            episode_seed = int(self._np_random.integers(0, 2**31 - 1))
+            if self.start_pool:
+                episode_seed = starts.pool_seed(self, self._np_random)
+            else:
+                episode_seed = int(self._np_random.integers(0, 2**31 - 1))
         self.seed_used = episode_seed
-        cached = _cached_start(self, episode_seed) if self.reset_cache else None
+        keep = starts.cache_size(self) > 0
+        cached = starts.cached_start(self, episode_seed) if keep else None
         if cached is None:
             self.sim = Simulator(self.config)
             snap = self.sim.reset(self.seed_used)
@@ -305,8 +313,8 @@ class MobilityEnv(ParallelEnv):
             rng = env_stream(episode_seed, "measurement")
             self.measure = Measurements.start(self.links.rx_dbm(self.positions_m), self.link_p, o.sensing_window,
                                               o.rsrp_error_db, rng)  # fmt: skip
-        if self.reset_cache and cached is None:
-            _store_start(self, episode_seed)
+        if keep and cached is None:
+            starts.store_start(self, episode_seed)
         obs = self._observations()
         infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
         return obs, infos
@@ -727,43 +735,3 @@ class CooperativeEnv(MobilityEnv):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**{**COOPERATIVE_DEFAULTS, **kwargs})
-
-
-@dataclass(frozen=True)
-class _Start:
-    """What :meth:`MobilityEnv.reset` computes for an episode seed that is worth keeping: the
-    stage-1 run (SPS warm-up) and its snapshot, the snapshot's links and the plan (shared, never
-    modified in snapshot mode)."""
-
-    sim: Simulator
-    snapshot: Any
-    links: SnapshotLinks
-    plan_m: NDArray[np.float64]
-
-
-#: process-wide cache of episode starts: key -> start, oldest first (``reset_cache`` bounds it)
-_START_CACHE: OrderedDict[tuple[Any, ...], _Start] = OrderedDict()
-
-
-def _start_key(env: MobilityEnv, seed: int) -> tuple[Any, ...]:
-    """Everything a start depends on: the scenario, the link truth and what the plan reads
-    (observation version, movers, reach, p_min, the model), and the seed."""
-    movers = tuple(int(i) for i in np.flatnonzero(env.mover_mask))
-    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min,
-             env.options.shadow_field)  # fmt: skip
-    return (repr(env.config), env.truth_los, env.mode, repr(env.layout), env.model_name, movers, reach, int(seed))
-
-
-def _cached_start(env: MobilityEnv, seed: int) -> _Start | None:
-    key = _start_key(env, seed)
-    start = _START_CACHE.get(key)
-    if start is not None:
-        _START_CACHE.move_to_end(key)
-    return start
-
-
-def _store_start(env: MobilityEnv, seed: int) -> None:
-    plan = getattr(env, "plan_m", env.positions_m)
-    _START_CACHE[_start_key(env, seed)] = _Start(env.sim, env.snapshot, env.links, np.array(plan, dtype=np.float64))
-    while len(_START_CACHE) > env.reset_cache:
-        _START_CACHE.popitem(last=False)

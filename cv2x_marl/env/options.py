@@ -304,6 +304,17 @@ class EnvOptions:
         lo=0.0,
     )
 
+    start_pool: int = _option(
+        0,
+        "snapshot mode: `reset()` without a seed starts from one of the first `start_pool` seeds of the protocol's "
+        "training list (`cv2x_marl.env.seeds.TRAIN_SEEDS`, disjoint from every task's held-out list), drawn by the "
+        "env's generator, and their starts are kept (the cache holds `max(reset_cache, start_pool)`): fast resets "
+        "for training; `reset(seed=s)` still runs episode `s`; 0: fresh seeds",
+        "starts",
+        lo=0,
+        hi=4096,
+    )
+
     @classmethod
     def from_mapping(cls, options: Mapping[str, Any], version: str = "v0") -> EnvOptions:
         """Options from a mapping (a YAML section, an env id's keyword arguments) over the defaults of
@@ -363,6 +374,8 @@ class EnvOptions:
             refuse("replan_every", self.replan_every, "null unless observation is 2")
         if self.reset_cache and self.mode != "snapshot":
             refuse("reset_cache", self.reset_cache, "0 unless mode is snapshot")
+        if self.start_pool and self.mode != "snapshot":
+            refuse("start_pool", self.start_pool, "0 unless mode is snapshot")
 
     def scenario(self) -> ScenarioConfig:
         """The scenario: :attr:`config`, else :attr:`preset` with :attr:`overrides`."""

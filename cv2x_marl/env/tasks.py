@@ -19,15 +19,22 @@ This module imports numpy and the registry only (no env code).
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-import numpy as np
-
 from cv2x_marl.env.registry import ENV_IDS
+from cv2x_marl.env.seeds import (  # noqa: F401 - the protocol's lists, re-exported with the tasks
+    HELDOUT_SEEDS,
+    N_HELDOUT,
+    N_TRAIN,
+    PROTOCOL_ENTROPY,
+    TASK_NAMES,
+    TRAIN_SEEDS,
+    seed_list,
+    training_pool,
+)
 
 #: the env ids of the tasks, in one place (issue 27's new ids; tests stand them in with the v2 ids
 #: until those are registered)
@@ -40,38 +47,12 @@ TASK_ENV_IDS: Mapping[str, str] = MappingProxyType(
 PENDING_TASKS: Mapping[str, str] = MappingProxyType(
     {"traffic": "cv2x/Traffic-v0 (driving vehicles, speed and lane actions) is not built yet"}
 )
-#: the root entropy of every task's seed lists (issue 27's protocol; never change it: it defines them)
-PROTOCOL_ENTROPY = 2027_0027
-#: episodes of each held-out list
-N_HELDOUT = 48
-#: episodes of each training list
-N_TRAIN = 4096
 #: the fixed env options of every task: the CLI's `evaluate` defaults (paper preset, 100 steps of 5 m)
 BASE_OPTIONS: Mapping[str, Any] = MappingProxyType({"preset": "paper", "max_cycles": 100, "max_step_m": 5.0})
 #: the scripted methods every offset-action task runs (docs/benchmark.md)
 SCRIPTED_METHODS = ("static", "random", "gbmu", "sensing")
 #: the ceiling's policy name (``--policy optimum``: the task's privileged search)
 CEILING = "optimum"
-
-
-def seed_list(task: str, kind: str, n: int, exclude: tuple[int, ...] = ()) -> tuple[int, ...]:
-    """``n`` distinct 32-bit episode seeds of list ``kind`` (``train`` | ``heldout``) of ``task``, none
-    in ``exclude``: the state of ``SeedSequence(PROTOCOL_ENTROPY, spawn_key=(crc32(task), k))`` (k = 0
-    held-out, 1 training), in order, repeats and excluded values skipped."""
-    kinds = ("heldout", "train")
-    if kind not in kinds:
-        raise ValueError(f"kind must be one of {', '.join(kinds)}, got {kind!r}")
-    ss = np.random.SeedSequence(PROTOCOL_ENTROPY, spawn_key=(zlib.crc32(task.encode()), kinds.index(kind)))
-    words = ss.generate_state(n + 64 + len(exclude), dtype=np.uint32)
-    out: list[int] = []
-    seen = set(exclude)
-    for w in words.tolist():
-        if w not in seen:
-            seen.add(w)
-            out.append(int(w))
-            if len(out) == n:
-                return tuple(out)
-    raise AssertionError("unreachable: 64 spare words cover the repeats")  # pragma: no cover
 
 
 @dataclass(frozen=True)
@@ -134,18 +115,16 @@ def make_task(
     refused: Mapping[str, str] | None = None,
     options: Mapping[str, Any] | None = None,
 ) -> Task:
-    """A :class:`Task` with its seed lists (:func:`seed_list`; the held-out list first, the training
-    list drawn disjoint from it)."""
-    held = seed_list(name, "heldout", N_HELDOUT)
-    train = seed_list(name, "train", N_TRAIN, exclude=held)
+    """A :class:`Task` with its held-out list (:data:`HELDOUT_SEEDS`) and the training list
+    (:data:`TRAIN_SEEDS`, disjoint from every held-out list)."""
     return Task(
         name=name,
         env_id=env_id,
         options=MappingProxyType(dict(BASE_OPTIONS if options is None else options)),
         methods=methods,
         refused=MappingProxyType(dict(refused or {})),
-        train_seeds=train,
-        heldout_seeds=held,
+        train_seeds=TRAIN_SEEDS,
+        heldout_seeds=HELDOUT_SEEDS[name],
     )
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cv2x_marl.env import mobility_env
+from cv2x_marl.env import starts
 from cv2x_marl.env.registry import make_parallel_env
 
 KW = {
@@ -28,22 +28,22 @@ def _episode(env, seed: int) -> list[np.ndarray]:  # type: ignore[no-untyped-def
 
 
 def test_cached_starts_are_bit_identical_to_computed_ones() -> None:
-    mobility_env._START_CACHE.clear()
+    starts.START_CACHE.clear()
     plain = make_parallel_env("cv2x/SingleMover-v2", **KW)
     cached = make_parallel_env("cv2x/SingleMover-v2", reset_cache=4, **KW)
     for seed in (3, 4, 3, 4):  # the second visit of each seed is served from the cache
         a, b = _episode(plain, seed), _episode(cached, seed)
         assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
-    assert len(mobility_env._START_CACHE) == 2
+    assert len(starts.START_CACHE) == 2
     np.testing.assert_array_equal(cached.plan_m, plain.plan_m)
 
 
 def test_the_cache_is_bounded_and_keyed_by_what_the_start_depends_on() -> None:
-    mobility_env._START_CACHE.clear()
+    starts.START_CACHE.clear()
     env = make_parallel_env("cv2x/SingleMover-v2", reset_cache=2, **KW)
     for seed in range(5):
         env.reset(seed=seed)
-    assert len(mobility_env._START_CACHE) == 2  # least recently used starts dropped
+    assert len(starts.START_CACHE) == 2  # least recently used starts dropped
     other = make_parallel_env("cv2x/SingleMover-v2", reset_cache=2, **{**KW, "max_cycles": 30})
     other.reset(seed=4)  # another reach: another plan, not the cached one
     fresh = make_parallel_env("cv2x/SingleMover-v2", **{**KW, "max_cycles": 30})
@@ -63,7 +63,7 @@ def test_start_pool_draws_episodes_from_n_seeds() -> None:
     from cv2x_marl.rl.train import TrainConfig, make_vec_env
     from cv2x_marl.rng import derive_seeds
 
-    mobility_env._START_CACHE.clear()
+    starts.START_CACHE.clear()
     cfg = TrainConfig(env_id="cv2x/SingleMover-v2", copies=2, env={**KW, "max_cycles": 2}, start_pool=3)
     vec = make_vec_env(cfg)
     vec.seed(7)
@@ -73,6 +73,41 @@ def test_start_pool_draws_episodes_from_n_seeds() -> None:
         vec.step(np.zeros((2, 2), np.float32))
         seen |= {env.seed_used for env in vec.envs}
     assert seen == set(derive_seeds(7, 3))  # the pool of PPO's seed, every member used
-    assert len(mobility_env._START_CACHE) == 3
+    assert len(starts.START_CACHE) == 3
     with pytest.raises(Exception, match="start_pool must be an integer >= 1"):
         TrainConfig(start_pool=0)
+
+
+def test_start_pool_draws_training_seeds_and_keeps_their_starts() -> None:
+    from cv2x_marl.env import tasks
+
+    starts.START_CACHE.clear()
+    env = make_parallel_env("cv2x/SingleMover-v3", start_pool=3, max_cycles=5)
+    env.reset(seed=11)  # an explicit seed still runs that episode
+    assert env.seed_used == 11
+    rng = np.random.default_rng(11)  # the env's generator after reset(seed=11)
+    expected = [tasks.TRAIN_SEEDS[int(rng.integers(3))] for _ in range(6)]
+    used = []
+    for _ in range(6):
+        env.reset()
+        used.append(env.seed_used)
+    assert used == expected and set(used) <= set(tasks.TRAIN_SEEDS[:3])
+    held = {s for h in tasks.HELDOUT_SEEDS.values() for s in h}
+    assert not set(used) & held
+    # the cache holds max(reset_cache, start_pool) = 3 starts: the pool's three, seed 11 dropped (least recent)
+    assert len(set(used)) == 3 and len(starts.START_CACHE) == 3
+    # a pooled start equals the same seed computed afresh, observation and rewards included
+    fresh = make_parallel_env("cv2x/SingleMover-v3", max_cycles=5)
+    o1, _ = fresh.reset(seed=used[-1])
+    o2 = env._observations()
+    np.testing.assert_array_equal(o1["vehicle_0"], o2["vehicle_0"])
+    act = {a: np.array([0.3, -0.2], dtype=np.float32) for a in env.agents}
+    r1 = fresh.step(act)[1]
+    r2 = env.step(act)[1]
+    assert r1 == r2
+
+
+def test_start_pool_refused_outside_its_range() -> None:
+    for bad in (-1, 4097, 1.5):
+        with pytest.raises(ValueError, match="start_pool"):
+            make_parallel_env("cv2x/SingleMover-v3", start_pool=bad)

@@ -1,0 +1,80 @@
+"""Episode starts worth keeping: the process-wide reset cache and the start pool.
+
+A start is what :meth:`~cv2x_marl.env.mobility_env.MobilityEnv.reset` computes for an episode seed before
+the first step: the stage-1 run (SPS warm-up, 20-30 ms) and its snapshot, the snapshot's links (with the
+episode's shadowing field) and the plan. ``reset_cache=C`` keeps up to C of them in :data:`START_CACHE`,
+shared by every env of the process with the same settings, so that ``reset(seed=s)`` for a cached ``s``
+reuses them (bit-identical to computing them). ``start_pool=P`` makes ``reset()`` without a seed draw its
+episode seed from the first P seeds of the protocol's training list
+(:func:`cv2x_marl.env.seeds.training_pool`, disjoint from every task's held-out list) and keeps their
+starts (the cache holds at least P): after the first P distinct starts, resets cost a copy of the start.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.sim import Simulator
+from cv2x_marl.sim.ground_truth import SnapshotLinks
+
+#: a :class:`~cv2x_marl.env.mobility_env.MobilityEnv` (not imported: it imports this module)
+MobilityEnv = Any
+
+
+@dataclass(frozen=True)
+class Start:
+    """What :meth:`MobilityEnv.reset` computes for an episode seed that is worth keeping: the
+    stage-1 run (SPS warm-up) and its snapshot, the snapshot's links and the plan (shared, never
+    modified in snapshot mode)."""
+
+    sim: Simulator
+    snapshot: Any
+    links: SnapshotLinks
+    plan_m: NDArray[np.float64]
+
+
+#: process-wide cache of episode starts: key -> start, oldest first (``reset_cache`` bounds it)
+START_CACHE: OrderedDict[tuple[Any, ...], Start] = OrderedDict()
+
+
+def start_key(env: MobilityEnv, seed: int) -> tuple[Any, ...]:
+    """Everything a start depends on: the scenario, the link truth and what the plan reads
+    (observation version, movers, reach, p_min, the model), and the seed."""
+    movers = tuple(int(i) for i in np.flatnonzero(env.mover_mask))
+    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min,
+             env.options.shadow_field)  # fmt: skip
+    return (repr(env.config), env.truth_los, env.mode, repr(env.layout), env.model_name, movers, reach, int(seed))
+
+
+def cached_start(env: MobilityEnv, seed: int) -> Start | None:
+    key = start_key(env, seed)
+    start = START_CACHE.get(key)
+    if start is not None:
+        START_CACHE.move_to_end(key)
+    return start
+
+
+def store_start(env: MobilityEnv, seed: int) -> None:
+    plan = getattr(env, "plan_m", env.positions_m)
+    START_CACHE[start_key(env, seed)] = Start(env.sim, env.snapshot, env.links, np.array(plan, dtype=np.float64))
+    while len(START_CACHE) > cache_size(env):
+        START_CACHE.popitem(last=False)
+
+
+def cache_size(env: MobilityEnv) -> int:
+    """Starts the env keeps: ``max(reset_cache, start_pool)``."""
+    return max(env.reset_cache, env.start_pool)
+
+
+def pool_seed(env: MobilityEnv, rng: np.random.Generator) -> int:
+    """The episode seed of a ``reset()`` without a seed when ``start_pool`` is set: one of the pool's
+    seeds, uniformly, drawn from the env's generator ``rng``."""
+    from cv2x_marl.env.seeds import training_pool
+
+    pool = training_pool(env.start_pool)
+    return int(pool[int(rng.integers(len(pool)))])
