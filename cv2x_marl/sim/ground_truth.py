@@ -352,7 +352,7 @@ class SnapshotLinks:
             hc, vc = self.road.corridors(positions_m)
             los = Road.corridor_los((hc[:, None], vc[:, None]), (hc[None, :], vc[None, :]))
         pos = np.asarray(positions_m, dtype=np.float64)
-        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos)
+        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos, compiled=self.compiled)
         dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, shadow)
         dbm[np.diag_indices(self.n)] = -np.inf
         if self._range2 is not None:
@@ -397,21 +397,36 @@ class SnapshotLinks:
         """
         return self.evaluate(positions_m)[0]
 
+    def gain_db(self, positions_m: FloatArray) -> FloatArray:
+        """[N, N] EIRP minus the shadowing of every pair (dBm) with the vehicles at ``positions_m``
+        [N, 2]: the snapshot's (``positions_m`` unused) or, with a field, the field's there. Compiled
+        path only (the kernels' ``gain_db``)."""
+        if self.field is None:
+            return self._kernel_args[2]
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        return np.ascontiguousarray(self.eirp_dbm - self.field.shadow_db(pos))
+
+    def _check_row(self, mover: int, positions_m: FloatArray) -> FloatArray:
+        if not 0 <= mover < self.n:
+            raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        if pos.shape != (self.n, 2):
+            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
+        return pos
+
     def mover_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
         """The links of one transmitter as a function of its own position, the others where they are.
+
+        With a shadowing field (:attr:`field`) the mover's own links read the field with the mover at
+        each candidate and the others at ``positions_m``; the interference at each receiver (from the
+        other transmitters) reads it at ``positions_m``: row ``mover`` of :meth:`evaluate` with the
+        mover at the candidate (tested).
 
         Args:
             mover: index of the transmitter that moves.
             positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
         """
-        if not 0 <= mover < self.n:
-            raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
-        if self.field is not None:
-            raise NotImplementedError("mover_row with a shadowing field")
-        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
-        if pos.shape != (self.n, 2):
-            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
-        return MoverRow(self, int(mover), pos)
+        return MoverRow(self, int(mover), self._check_row(mover, positions_m))
 
     def sensed_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
         """The mover's own estimate of its links (what it can know from Mode 4 sensing), not the truth.
@@ -426,14 +441,22 @@ class SnapshotLinks:
         are the snapshot's (in the Manhattan grid they follow from the road map). Used by the
         ``-v2`` observation and the ``sensing`` planner; compiled kernels only.
 
+        With a shadowing field (:attr:`field`) the vehicle knows its links' shadowing only where it
+        stands (what it measured there): for every candidate position the estimate keeps the own
+        links' shadowing at ``positions_m`` (path loss from the candidate, shadowing from here), so it
+        differs from the truth by the field's change between here and the candidate (TR 36.885 A.1.4:
+        correlation ``exp(-r / d)`` at a distance r).
+
         Args:
             mover: index of the transmitter that moves.
             positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
         """
         if not self.compiled:
             raise ValueError("sensed_row needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
-        row = self.mover_row(mover, positions_m)
-        (period, los, gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        pos = self._check_row(mover, positions_m)
+        row = MoverRow(self, int(mover), pos, follow_field=False)
+        (period, los, _gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        gain = self.gain_db(pos)
         own = np.zeros((self.n, self.n), dtype=bool)
         own[mover, :] = own[:, mover] = True
         sensed_gain = np.ascontiguousarray(np.where(own, gain, self.eirp_dbm))
@@ -449,25 +472,36 @@ class MoverRow:
 
     With the other vehicles fixed, the interference on the mover's links does not depend on where
     the mover stands (a transmitter never interferes with its own packet), so it is computed once;
-    each candidate position then costs one path loss per target receiver. Compiled: the additions of
-    :func:`cv2x_marl.sim.kernels.snapshot_links` in the same order (bit-identical to the row of a
-    full evaluation, tested); otherwise one full numpy evaluation per candidate.
+    each candidate position then costs one path loss per target receiver (and, with a shadowing
+    field, the field of each of its links there: :meth:`ShadowField.row_db`). Compiled: the additions
+    of :func:`cv2x_marl.sim.kernels.snapshot_links` in the same order (bit-identical to the row of a
+    full evaluation without a field, tested; with a field equal to the field's tolerance);
+    otherwise one full numpy evaluation per candidate.
+
+    Args:
+        links: the snapshot's links.
+        mover: the transmitter that moves.
+        positions_m: [N, 2] every vehicle's position (m).
+        follow_field: with a field, whether the mover's own links read it at each candidate (the
+            truth) or keep its values at ``positions_m`` (the sensing estimate, :meth:`SnapshotLinks.sensed_row`).
     """
 
-    def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray) -> None:
+    def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray, follow_field: bool = True) -> None:
         self.links = links
         self.mover = mover
         self.positions_m = positions_m
         self.target_row = np.ascontiguousarray(links.target[mover])
+        self._field = links.field if follow_field else None
         if links.compiled:
-            (period, los, gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            gain = links.gain_db(positions_m)  # the interference at each receiver: the field here
             interference = kernels.mover_interference(positions_m, period, los, gain, wb1, range2, idx, val, mover)
             self._args = (
                 positions_m,
                 mover,
                 period,
                 np.ascontiguousarray(los[mover]),
-                np.ascontiguousarray(gain[mover]),
+                np.ascontiguousarray(gain[mover]),  # [N]: the own links' gains where the mover stands
                 wb1,
                 range2,
                 interference,
@@ -480,11 +514,19 @@ class MoverRow:
                 self.target_row,
             )
 
+    def _gain_rows(self, cand: FloatArray) -> FloatArray:
+        """[G, N] the own links' gains: [1, N] (the snapshot's shadowing, or the field where the mover
+        stands for the sensing estimate) or [M, N] (the field at each candidate)."""
+        if self._field is None:
+            return self._args[4][None, :]
+        return np.ascontiguousarray(self.links.eirp_dbm - self._field.row_db(self.mover, self.positions_m, cand))
+
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         if self.links.compiled:
-            return kernels.mover_row_success(cand, *self._args)
+            a = self._args
+            return kernels.mover_row_success(cand, *a[:4], self._gain_rows(cand), *a[5:])
         out = np.empty((cand.shape[0], self.links.n))
         pos = self.positions_m.copy()
         for m, c in enumerate(cand):  # reference path (power law, geometry LOS): one evaluation each
@@ -497,9 +539,15 @@ class MoverRow:
         (compiled: :func:`cv2x_marl.sim.kernels.mover_row_utility`, bit-identical to the utility of
         :meth:`success`)."""
         cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
-        if self.links.compiled:
-            return kernels.mover_row_utility(np.ascontiguousarray(cand), *self._args, float(p_min))
+        if self.links.compiled and self._field is None:
+            a = self._args
+            return kernels.mover_row_utility(np.ascontiguousarray(cand), *a[:4], a[4][None, :], *a[5:], float(p_min))
         out = np.empty(cand.shape[0])
         for lo in range(0, cand.shape[0], chunk):
-            out[lo : lo + chunk] = kernels.row_utility(self.success(cand[lo : lo + chunk]), self.target_row, p_min)
+            c = np.ascontiguousarray(cand[lo : lo + chunk])
+            if self.links.compiled:
+                a = self._args
+                out[lo : lo + chunk] = kernels.mover_row_utility(c, *a[:4], self._gain_rows(c), *a[5:], float(p_min))
+            else:
+                out[lo : lo + chunk] = kernels.row_utility(self.success(c), self.target_row, p_min)
         return out

@@ -36,11 +36,13 @@ ceiling's search read one field.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig
+from cv2x_marl.sim.kernels.field import field_row_db, field_shadow_db
 
 FloatArray = NDArray[np.float64]
 
@@ -115,9 +117,49 @@ class ShadowField:
         """Number of vehicles."""
         return int(self.start_m.shape[0])
 
-    def shadow_db(self, positions_m: FloatArray) -> FloatArray:
+    @cached_property
+    def g0(self) -> FloatArray:
+        """[N, N] the unit field ``G`` of each pair at the start positions (the pair ``(a, b)``'s draws
+        at ``[min, max]``, mirrored)."""
+        g = np.sqrt(2.0 / self.phase.shape[-1]) * np.cos(self.phase).sum(axis=-1)
+        upper = np.triu(np.ones((self.n, self.n), dtype=bool), 1)
+        return np.ascontiguousarray(np.where(upper, g, g.T))
+
+    def _kernel_arrays(self) -> tuple:
+        return (
+            self.start_m, self.shadow0_db, self.sigma_db, float(self.decorrelation_m), self.k_lo, self.k_hi,
+            self.phase, self.g0,
+        )  # fmt: skip
+
+    def shadow_db(self, positions_m: FloatArray, compiled: bool = True) -> FloatArray:
         """[N, N] shadowing of every pair with the vehicles at ``positions_m`` [N, 2] (dB, symmetric,
-        0 on the diagonal); equal to ``shadow0_db`` at ``start_m``. Numpy reference."""
+        0 on the diagonal); equal to ``shadow0_db`` at ``start_m`` (exactly, pair by pair: a pair
+        neither of whose ends moved keeps its snapshot value).
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+            compiled: the numba kernel :func:`cv2x_marl.sim.kernels.field.field_shadow_db` (default);
+                False: the numpy reference below (equal to about 1e-12 dB: numba's and numpy's
+                ``cos`` / ``exp`` differ in the last ulps).
+        """
+        if compiled:
+            pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+            if pos.shape != (self.n, 2):
+                raise ValueError(f"positions_m must have shape ({self.n}, 2), got {pos.shape}")
+            return field_shadow_db(pos, *self._kernel_arrays())
+        return self._shadow_db_numpy(positions_m)
+
+    def row_db(self, mover: int, positions_m: FloatArray, candidates_m: FloatArray) -> FloatArray:
+        """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m) and every other
+        vehicle at ``positions_m`` [N, 2] (dB; 0 in column ``mover``): row ``mover`` of
+        :meth:`shadow_db` with the mover at each candidate, compiled
+        (:func:`cv2x_marl.sim.kernels.field.field_row_db`)."""
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
+        return field_row_db(cand, pos, int(mover), *self._kernel_arrays())
+
+    def _shadow_db_numpy(self, positions_m: FloatArray) -> FloatArray:
+        """The numpy reference of :meth:`shadow_db`."""
         pos = np.asarray(positions_m, dtype=np.float64)
         n = self.n
         disp = pos - self.start_m  # [N, 2]
