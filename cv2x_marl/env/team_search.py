@@ -1,0 +1,226 @@
+"""The Cooperative ceiling: a centralised search of the team objective over every vehicle's reachable set.
+
+Team objective (what ``reward="team", normalise_reward=True`` rewards, eq. 12 per transmitter):
+
+    J(x) = (1 / N) sum_i (1 / |T_i|) sum_{j in T_i} ln max(P_ij(x), p_min)
+
+with ``P`` the expected success of every link (:meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.evaluate`:
+the snapshot's resources, the WINNER+ B1 path loss, the snapshot's shadowing or the episode's shadowing
+field, TR 36.885 A.1.4) and ``T_i`` the target receivers of ``i`` (without ``normalise``: ``1 / N`` alone).
+
+Search: coordinate ascent. Each vehicle in turn moves to the position of its :func:`reachable_set` that
+maximises ``J`` with the others fixed: every point of a 20 m grid over the set (and where it stands), then
+5 m and 1 m grids around the best (the pitches ``grids_m``); a move is taken when it raises ``J``. Rounds
+over all vehicles repeat until a round moves nobody (or ``max_rounds``). The ascent runs from several
+starts (the snapshot positions; :class:`~cv2x_marl.policies.optimum.OptimumPolicy` adds the
+best-response positions) in several vehicle orders, and the best end point is kept. ``J`` never falls
+along an ascent, so the result is never below any start's ``J`` (in particular best response's when it
+is a start): it is the best found, a lower bound on the true team optimum, not a proof of optimality.
+
+Each candidate is evaluated incrementally (:func:`cv2x_marl.sim.kernels.team.team_move_objective`): when
+only vehicle ``v`` moves, only its broadcasts, the links it receives and the links it interferes with
+change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.env.planning import PlanningEnv, ReachableSet, reachable_set
+from cv2x_marl.env.step import utilities
+from cv2x_marl.sim.ground_truth import SnapshotLinks
+from cv2x_marl.sim.kernels.team import team_move_objective, team_terms
+
+FloatArray = NDArray[np.float64]
+
+#: pitches of the coordinate search (m): a global grid over the reachable set, then local grids
+TEAM_GRIDS_M = (20.0, 5.0, 1.0)
+
+
+def team_objective(links: SnapshotLinks, positions_m: FloatArray, p_min: float, normalise: bool = True) -> float:
+    """``J`` at ``positions_m`` [N, 2] (m): the mean over vehicles of :func:`cv2x_marl.env.step.utilities`
+    of a full :meth:`SnapshotLinks.evaluate` (the env's team reward; the search's reference)."""
+    p = links.evaluate(np.asarray(positions_m, dtype=np.float64))[0]
+    return float(utilities(p, links.target, p_min, normalise)[0].mean())
+
+
+class TeamObjective:
+    """``J`` with one vehicle at many candidate positions, the others fixed (compiled, incremental).
+
+    Args:
+        links: the snapshot's links (compiled kernels: WINNER+ B1, ``truth_los`` snapshot or always).
+        p_min: clip of P inside eq. 12's log.
+        normalise: the per-receiver normalisation of each vehicle's utility (``normalise_reward``).
+    """
+
+    def __init__(self, links: SnapshotLinks, p_min: float, normalise: bool = True) -> None:
+        if not links.compiled:
+            raise ValueError("the team search needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+        self.links = links
+        self.p_min = float(p_min)
+        count = links.target.sum(axis=1)
+        n = links.n
+        self.weight = (1.0 / (n * np.maximum(count, 1))) if normalise else np.full(n, 1.0 / n)
+        self.positions_m = np.zeros((n, 2))
+        self.value = np.nan
+        self._state: tuple = ()
+        self._gain = np.zeros((n, n))
+
+    def set_positions(self, positions_m: FloatArray) -> float:
+        """Take ``positions_m`` [N, 2] (m) as the current positions; returns ``J`` there."""
+        links = self.links
+        self.positions_m = np.array(positions_m, dtype=np.float64)
+        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links._kernel_args
+        self._gain = links.gain_db(self.positions_m)
+        rx_dbm, rx_mw, term, total = team_terms(
+            self.positions_m, period, los, self._gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens,
+            target, self.weight, self.p_min,
+        )  # fmt: skip
+        self._state = (rx_dbm, rx_mw, term, float(total))
+        self.value = float(total)
+        return self.value
+
+    def move_values(self, mover: int, candidates_m: FloatArray) -> FloatArray:
+        """[M] ``J`` with vehicle ``mover`` at each candidate [M, 2] (m), the others where they are."""
+        links = self.links
+        cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
+        if links.field is None:
+            g_out = np.ascontiguousarray(self._gain[mover][None, :])
+            g_in = np.ascontiguousarray(self._gain[:, mover][None, :])
+        else:  # the field of the mover's links at each candidate (symmetric: one table both ways)
+            g_out = np.ascontiguousarray(links.eirp_dbm - links.field.row_db(mover, self.positions_m, cand))
+            g_in = g_out
+        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links._kernel_args
+        return team_move_objective(
+            cand, int(mover), g_out, g_in, self.positions_m, period, los, wb1, range2, idx, val, noise, model,
+            per_sinr, per, thr, sens, target, self.weight, self.p_min, *self._state,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class TeamSearchResult:
+    """What :func:`team_search` found.
+
+    Attributes:
+        positions_m: [N, 2] the best positions found (m).
+        objective: ``J`` there (:func:`team_objective`, a full evaluation).
+        start_objectives: ``J`` at each start.
+        end_objectives: ``J`` at the end of each (start, order) ascent, starts outer.
+        rounds: rounds of each ascent.
+    """
+
+    positions_m: FloatArray
+    objective: float
+    start_objectives: tuple[float, ...]
+    end_objectives: tuple[float, ...]
+    rounds: tuple[int, ...]
+
+
+def _grid_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: float) -> FloatArray:
+    """The points of a square grid of pitch ``pitch_m`` and half-width ``half_m`` around ``center_m``
+    that lie in ``reach`` (the whole set's bounding box when ``half_m`` is inf)."""
+    if np.isinf(half_m):
+        lo, hi = reach.bounds()
+    else:
+        lo, hi = center_m - half_m, center_m + half_m
+    axes = [np.arange(lo[c], hi[c] + 0.5 * pitch_m, pitch_m) for c in range(2)]
+    gx, gy = np.meshgrid(*axes, indexing="ij")
+    pts = np.stack((gx.ravel(), gy.ravel()), axis=1)
+    return pts[reach.contains(pts)]
+
+
+def vehicle_orders(n: int, count: int) -> list[NDArray[np.int64]]:
+    """``count`` deterministic visiting orders of N vehicles: index order, reversed, then from the middle
+    outwards and its reverse, then rotations."""
+    base = np.arange(n)
+    middle = np.argsort(np.abs(base - (n - 1) / 2.0), kind="stable")
+    orders = [base, base[::-1], middle, middle[::-1]]
+    k = 1
+    while len(orders) < count:
+        orders.append(np.roll(base, k * max(n // count, 1)))
+        k += 1
+    return [np.asarray(o, dtype=np.int64) for o in orders[:count]]
+
+
+def team_search(
+    env: PlanningEnv,
+    starts_m: Sequence[FloatArray] | None = None,
+    n_orders: int = 2,
+    grids_m: Sequence[float] = TEAM_GRIDS_M,
+    max_rounds: int = 8,
+    movers: Sequence[int] | None = None,
+    normalise: bool = True,
+    tol: float = 1e-12,
+) -> TeamSearchResult:
+    """Coordinate ascent of the team objective over the movers' reachable sets (module docstring).
+
+    Args:
+        env: a snapshot-mode env at the time of the search (its links, ``p_min`` and the reachable sets
+            from where the vehicles are now: :func:`~cv2x_marl.env.planning.reachable_set`).
+        starts_m: [N, 2] start positions of the ascents (each inside the reachable sets); None: where
+            the vehicles are now.
+        n_orders: vehicle orders per start (:func:`vehicle_orders`).
+        grids_m: the pitches (m), coarse to fine; each finer grid spans one coarser pitch either side.
+        max_rounds: most rounds of one ascent.
+        movers: the vehicles that move (None: every vehicle).
+        normalise: per-receiver normalisation of each vehicle's utility (the env's ``normalise_reward``).
+        tol: smallest rise of ``J`` that counts as a move.
+
+    Returns:
+        :class:`TeamSearchResult`; its ``objective`` is never below any start's.
+    """
+    if env.mode != "snapshot":
+        raise ValueError("the team search needs the env in snapshot mode")
+    if n_orders < 1 or max_rounds < 1 or not grids_m or min(grids_m) <= 0:
+        raise ValueError(f"n_orders and max_rounds must be >= 1 and grids_m positive, got {n_orders}, {max_rounds}, {grids_m}")
+    n = int(np.asarray(env.positions_m).shape[0])
+    who = list(range(n)) if movers is None else [int(i) for i in movers]
+    reaches = {i: reachable_set(env, i) for i in who}
+    coarse = {i: _grid_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in who}
+    starts = [np.array(env.positions_m, dtype=np.float64)] if starts_m is None else [np.array(s, dtype=np.float64) for s in starts_m]
+    objective = TeamObjective(env.links, env.p_min, normalise)
+    best_pos, best_j = starts[0], -np.inf
+    start_j, end_j, rounds_used = [], [], []
+    for start in starts:
+        start_j.append(objective.set_positions(start))
+        for order in vehicle_orders(len(who), n_orders):
+            pos = start.copy()
+            j_now = objective.set_positions(pos)
+            used = 0
+            for _ in range(max_rounds):
+                used += 1
+                moved = False
+                for k in order:
+                    i = who[int(k)]
+                    cand = np.concatenate([pos[i][None], coarse[i]])
+                    vals = objective.move_values(i, cand)
+                    b = int(np.argmax(vals))
+                    x_best, j_best = cand[b].copy(), float(vals[b])
+                    for coarse_pitch, pitch in zip(grids_m[:-1], grids_m[1:], strict=True):
+                        fine = _grid_in(reaches[i], x_best, float(coarse_pitch), float(pitch))
+                        if fine.size:
+                            vf = objective.move_values(i, fine)
+                            bf = int(np.argmax(vf))
+                            if vf[bf] > j_best:
+                                x_best, j_best = fine[bf].copy(), float(vf[bf])
+                    if j_best > j_now + tol:
+                        pos[i] = x_best
+                        j_now = objective.set_positions(pos)
+                        moved = True
+                if not moved:
+                    break
+            end_j.append(j_now)
+            rounds_used.append(used)
+            if j_now > best_j:
+                best_pos, best_j = pos.copy(), j_now
+    return TeamSearchResult(
+        best_pos,
+        team_objective(env.links, best_pos, env.p_min, normalise),
+        tuple(start_j),
+        tuple(end_j),
+        tuple(rounds_used),
+    )
