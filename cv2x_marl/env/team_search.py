@@ -133,6 +133,70 @@ def _grid_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: 
     return pts[reach.contains(pts)]
 
 
+def _single_move(
+    objective: TeamObjective,
+    pos: FloatArray,
+    j_now: float,
+    i: int,
+    reaches: dict[int, ReachableSet],
+    coarse: dict[int, FloatArray],
+    grids_m: Sequence[float],
+    tol: float,
+) -> tuple[FloatArray, float]:
+    """Vehicle ``i`` to its best position for the team, the others fixed (coarse grid, then finer ones)."""
+    cand = np.concatenate([pos[i][None], coarse[i]])
+    vals = objective.move_values(i, cand)
+    b = int(np.argmax(vals))
+    x_best, j_best = cand[b].copy(), float(vals[b])
+    for coarse_pitch, pitch in zip(grids_m[:-1], grids_m[1:], strict=True):
+        fine = _grid_in(reaches[i], x_best, float(coarse_pitch), float(pitch))
+        if fine.size:
+            vf = objective.move_values(i, fine)
+            bf = int(np.argmax(vf))
+            if vf[bf] > j_best:
+                x_best, j_best = fine[bf].copy(), float(vf[bf])
+    if j_best > j_now + tol:
+        pos = pos.copy()
+        pos[i] = x_best
+        j_now = objective.set_positions(pos)
+    return pos, j_now
+
+
+def _thin(points: FloatArray, count: int) -> FloatArray:
+    """At most ``count`` of ``points`` [M, 2], evenly spaced in their order."""
+    if points.shape[0] <= count:
+        return points
+    return points[np.linspace(0, points.shape[0] - 1, count).round().astype(np.int64)]
+
+
+def _pair_move(
+    objective: TeamObjective,
+    pos: FloatArray,
+    j_now: float,
+    a: int,
+    b: int,
+    coarse: dict[int, FloatArray],
+    count: int,
+    tol: float,
+) -> tuple[FloatArray, float]:
+    """Vehicles ``a`` and ``b`` jointly to their best pair of thinned coarse-grid positions, if it raises ``J``."""
+    grid_a = np.concatenate([pos[a][None], _thin(coarse[a], count)])
+    grid_b = np.concatenate([pos[b][None], _thin(coarse[b], count)])
+    trial = pos.copy()
+    best = (j_now, pos[a].copy(), pos[b].copy())
+    for xa in grid_a:
+        trial[a] = xa
+        objective.set_positions(trial)
+        vals = objective.move_values(b, grid_b)
+        k = int(np.argmax(vals))
+        if vals[k] > best[0]:
+            best = (float(vals[k]), xa.copy(), grid_b[k].copy())
+    if best[0] > j_now + tol:
+        pos = pos.copy()
+        pos[a], pos[b] = best[1], best[2]
+    return pos, objective.set_positions(pos)
+
+
 def vehicle_orders(n: int, count: int) -> list[NDArray[np.int64]]:
     """``count`` deterministic visiting orders of N vehicles: index order, reversed, then from the middle
     outwards and its reverse, then rotations."""
@@ -151,10 +215,12 @@ def team_search(
     starts_m: Sequence[FloatArray] | None = None,
     n_orders: int = 2,
     grids_m: Sequence[float] = TEAM_GRIDS_M,
-    max_rounds: int = 8,
+    max_rounds: int = 4,
     movers: Sequence[int] | None = None,
     normalise: bool = True,
     tol: float = 1e-12,
+    pair_points: int = 16,
+    min_round_gain: float = 1e-4,
 ) -> TeamSearchResult:
     """Coordinate ascent of the team objective over the movers' reachable sets (module docstring).
 
@@ -169,6 +235,13 @@ def team_search(
         movers: the vehicles that move (None: every vehicle).
         normalise: per-receiver normalisation of each vehicle's utility (the env's ``normalise_reward``).
         tol: smallest rise of ``J`` that counts as a move.
+        pair_points: when a round of single moves gains nothing, every pair of movers is searched jointly
+            on their coarse grids thinned to at most this many points each (0: no pair moves), and the
+            rounds go on if that gained. Single moves stall where a link is lost unless two vehicles move
+            at once (eq. 12's clip at ``p_min`` is flat there); a gain that needs three at once is missed.
+
+        min_round_gain: a round (singles, then pairs) that raises ``J`` by no more than this ends the ascent
+            (``J`` is a mean of per-receiver ``ln P``: 1e-4 is about a 0.01 % change of the P's).
 
     Returns:
         :class:`TeamSearchResult`; its ``objective`` is never below any start's.
@@ -183,6 +256,7 @@ def team_search(
     coarse = {i: _grid_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in who}
     starts = [np.array(env.positions_m, dtype=np.float64)] if starts_m is None else [np.array(s, dtype=np.float64) for s in starts_m]
     objective = TeamObjective(env.links, env.p_min, normalise)
+    pairs = [(a, b) for a in who for b in who if a < b] if pair_points > 0 else []
     best_pos, best_j = starts[0], -np.inf
     start_j, end_j, rounds_used = [], [], []
     for start in starts:
@@ -193,25 +267,13 @@ def team_search(
             used = 0
             for _ in range(max_rounds):
                 used += 1
-                moved = False
+                j_round = j_now
                 for k in order:
-                    i = who[int(k)]
-                    cand = np.concatenate([pos[i][None], coarse[i]])
-                    vals = objective.move_values(i, cand)
-                    b = int(np.argmax(vals))
-                    x_best, j_best = cand[b].copy(), float(vals[b])
-                    for coarse_pitch, pitch in zip(grids_m[:-1], grids_m[1:], strict=True):
-                        fine = _grid_in(reaches[i], x_best, float(coarse_pitch), float(pitch))
-                        if fine.size:
-                            vf = objective.move_values(i, fine)
-                            bf = int(np.argmax(vf))
-                            if vf[bf] > j_best:
-                                x_best, j_best = fine[bf].copy(), float(vf[bf])
-                    if j_best > j_now + tol:
-                        pos[i] = x_best
-                        j_now = objective.set_positions(pos)
-                        moved = True
-                if not moved:
+                    pos, j_now = _single_move(objective, pos, j_now, who[int(k)], reaches, coarse, grids_m, tol)
+                if j_now <= j_round + min_round_gain and pairs:  # single moves stall: joint moves of pairs
+                    for a, b in pairs:
+                        pos, j_now = _pair_move(objective, pos, j_now, a, b, coarse, pair_points, tol)
+                if j_now <= j_round + min_round_gain:
                     break
             end_j.append(j_now)
             rounds_used.append(used)
