@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,7 +60,9 @@ class TeamObjective:
 
     def __init__(self, links: SnapshotLinks, p_min: float, normalise: bool = True) -> None:
         if not links.compiled:
-            raise ValueError("the team search needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+            raise ValueError(
+                "the team search needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)"
+            )
         self.links = links
         self.p_min = float(p_min)
         count = links.target.sum(axis=1)
@@ -148,7 +151,7 @@ def _single_move(
     vals = objective.move_values(i, cand)
     b = int(np.argmax(vals))
     x_best, j_best = cand[b].copy(), float(vals[b])
-    for coarse_pitch, pitch in zip(grids_m[:-1], grids_m[1:], strict=True):
+    for coarse_pitch, pitch in pairwise(grids_m):
         fine = _grid_in(reaches[i], x_best, float(coarse_pitch), float(pitch))
         if fine.size:
             vf = objective.move_values(i, fine)
@@ -249,12 +252,18 @@ def team_search(
     if env.mode != "snapshot":
         raise ValueError("the team search needs the env in snapshot mode")
     if n_orders < 1 or max_rounds < 1 or not grids_m or min(grids_m) <= 0:
-        raise ValueError(f"n_orders and max_rounds must be >= 1 and grids_m positive, got {n_orders}, {max_rounds}, {grids_m}")
+        raise ValueError(
+            f"n_orders and max_rounds must be >= 1 and grids_m positive, got {n_orders}, {max_rounds}, {grids_m}"
+        )
     n = int(np.asarray(env.positions_m).shape[0])
     who = list(range(n)) if movers is None else [int(i) for i in movers]
     reaches = {i: reachable_set(env, i) for i in who}
     coarse = {i: _grid_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in who}
-    starts = [np.array(env.positions_m, dtype=np.float64)] if starts_m is None else [np.array(s, dtype=np.float64) for s in starts_m]
+    starts = (
+        [np.array(env.positions_m, dtype=np.float64)]
+        if starts_m is None
+        else [np.array(s, dtype=np.float64) for s in starts_m]
+    )
     objective = TeamObjective(env.links, env.p_min, normalise)
     pairs = [(a, b) for a in who for b in who if a < b] if pair_points > 0 else []
     best_pos, best_j = starts[0], -np.inf

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -496,7 +496,7 @@ class MoverRow:
             (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
             gain = links.gain_db(positions_m)  # the interference at each receiver: the field here
             interference = kernels.mover_interference(positions_m, period, los, gain, wb1, range2, idx, val, mover)
-            self._args = (
+            self._args: tuple[Any, ...] = (
                 positions_m,
                 mover,
                 period,
@@ -521,12 +521,16 @@ class MoverRow:
             return self._args[4][None, :]
         return np.ascontiguousarray(self.links.eirp_dbm - self._field.row_db(self.mover, self.positions_m, cand))
 
+    def _kernel_args(self, cand: FloatArray) -> tuple[Any, ...]:
+        """The arguments of the row kernels after ``candidates_m``, with the gains of :meth:`_gain_rows`."""
+        a = self._args
+        return (*a[:4], self._gain_rows(cand), *a[5:])
+
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         if self.links.compiled:
-            a = self._args
-            return kernels.mover_row_success(cand, *a[:4], self._gain_rows(cand), *a[5:])
+            return kernels.mover_row_success(cand, *self._kernel_args(cand))
         out = np.empty((cand.shape[0], self.links.n))
         pos = self.positions_m.copy()
         for m, c in enumerate(cand):  # reference path (power law, geometry LOS): one evaluation each
@@ -540,14 +544,13 @@ class MoverRow:
         :meth:`success`)."""
         cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
         if self.links.compiled and self._field is None:
-            a = self._args
-            return kernels.mover_row_utility(np.ascontiguousarray(cand), *a[:4], a[4][None, :], *a[5:], float(p_min))
+            c = np.ascontiguousarray(cand)
+            return kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
         out = np.empty(cand.shape[0])
         for lo in range(0, cand.shape[0], chunk):
             c = np.ascontiguousarray(cand[lo : lo + chunk])
             if self.links.compiled:
-                a = self._args
-                out[lo : lo + chunk] = kernels.mover_row_utility(c, *a[:4], self._gain_rows(c), *a[5:], float(p_min))
+                out[lo : lo + chunk] = kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
             else:
                 out[lo : lo + chunk] = kernels.row_utility(self.success(c), self.target_row, p_min)
         return out

@@ -20,7 +20,9 @@ from cv2x_marl.utility import utility_log
 
 def _with_field(env, seed: int) -> None:
     snap = env.links.snapshot
-    field = ShadowField.draw(env.config, snap.positions_m, snap.shadowing_db, snap.los, env_stream(seed, "shadow_field"))
+    field = ShadowField.draw(
+        env.config, snap.positions_m, snap.shadowing_db, snap.los, env_stream(seed, "shadow_field")
+    )
     env.links = SnapshotLinks(env.config, snap, env.truth_los, field=field)
 
 
@@ -35,7 +37,9 @@ def _numpy_j(env, positions: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def team_env():
-    env = make_parallel_env("cv2x/Mobility-v2", reward="team", normalise_reward=True, overrides=["link.inband_emission_db=-25"])
+    env = make_parallel_env(
+        "cv2x/Mobility-v2", reward="team", normalise_reward=True, overrides=["link.inband_emission_db=-25"]
+    )
     env.reset(seed=3)
     return env
 
@@ -125,7 +129,9 @@ def test_never_below_best_response_and_the_objective_is_exact(seed: int) -> None
     assert res.start_objectives[1] == pytest.approx(j_br, abs=1e-12)
     assert res.objective >= j_br - 1e-12
     assert res.objective == pytest.approx(_numpy_j(env, res.positions_m), rel=1e-9, abs=1e-12)
-    assert res.objective == max(res.end_objectives) or res.objective == pytest.approx(max(res.end_objectives), abs=1e-12)
+    assert res.objective == max(res.end_objectives) or res.objective == pytest.approx(
+        max(res.end_objectives), abs=1e-12
+    )
     for i in range(env.n):
         assert reachable_set(env, i).contains(res.positions_m[i][None])[0]
 

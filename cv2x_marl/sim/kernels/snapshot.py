@@ -318,9 +318,10 @@ def mover_row_utility(
     p_min: float,
 ) -> FloatArray:
     """[M] eq. 12 utility of ``mover`` at each candidate (arguments as :func:`mover_row_success`,
-    ``gain_row_db`` [G, N]): :func:`row_utility` of :func:`mover_row_success`, fused (no [M, N] table; the noise-plus-interference level of each
-    receiver computed once). The same operations in the same order, so bit-identical (tested); the
-    global searches of the optimum and the sensing plan run on it.
+    ``gain_row_db`` [G, N]): :func:`row_utility` of :func:`mover_row_success`, fused (no [M, N]
+    table; the noise-plus-interference level of each receiver computed once). The same operations
+    in the same order, so bit-identical (tested); the global searches of the optimum and the sensing
+    plan run on it.
     """
     m_count = candidates_m.shape[0]
     n = positions_m.shape[0]

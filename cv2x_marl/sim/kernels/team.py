@@ -117,7 +117,9 @@ def team_move_objective(
     # the noise-plus-interference level of the mover's own packet at each receiver does not depend on it
     level_row = np.empty(n)
     for j in range(n):
-        level_row[j] = 10.0 * math.log10(_interference_mw(rx_mw, interferer_idx, interferer_weight, mover, j) + noise_mw)
+        level_row[j] = 10.0 * math.log10(
+            _interference_mw(rx_mw, interferer_idx, interferer_weight, mover, j) + noise_mw
+        )
     out_dbm = np.empty(n)  # mover -> j
     in_dbm = np.empty(n)  # j -> mover
     out_mw = np.empty(n)
@@ -161,9 +163,7 @@ def team_move_objective(
         row = 0.0
         for j in range(n):
             if target[mover, j]:
-                p = success_at_level(
-                    out_dbm[j], level_row[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm
-                )
+                p = success_at_level(out_dbm[j], level_row[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
                 row += eq12_term(p, p_min) - term[mover, j]
         delta += weight[mover] * row
         # the links of the others
@@ -188,9 +188,7 @@ def team_move_objective(
                             pw = rx_mw[c, j]
                         interference += interferer_weight[i, g] * pw
                     s = in_dbm[i] if j == mover else rx_dbm[i, j]
-                    p = _link_success(
-                        s, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
-                    )
+                    p = _link_success(s, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
                     row += eq12_term(p, p_min) - term[i, j]
             elif target[i, mover]:  # only the link to the mover: its signal and the interference at it
                 interference = 0.0
