@@ -87,15 +87,29 @@ class TeamObjective:
         self.value = float(total)
         return self.value
 
-    def move_values(self, mover: int, candidates_m: FloatArray) -> FloatArray:
-        """[M] ``J`` with vehicle ``mover`` at each candidate [M, 2] (m), the others where they are."""
+    def field_rows(self, mover: int, candidates_m: FloatArray) -> FloatArray:
+        """[M, N] the field of ``mover``'s links at each candidate [M, 2] (m), the others where they are
+        (:meth:`ShadowField.row_db`); needs a field."""
+        assert self.links.field is not None
+        return self.links.field.row_db(mover, self.positions_m, candidates_m)
+
+    def move_values(self, mover: int, candidates_m: FloatArray, field_db: FloatArray | None = None) -> FloatArray:
+        """[M] ``J`` with vehicle ``mover`` at each candidate [M, 2] (m), the others where they are.
+
+        Args:
+            mover: the vehicle that moves.
+            candidates_m: [M, 2] its positions (m).
+            field_db: [M, N] with a field, its values on the mover's links at the candidates when already
+                known (:meth:`field_rows`, :meth:`ShadowField.lattice_row_db`); None: computed here.
+        """
         links = self.links
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         if links.field is None:
             g_out = np.ascontiguousarray(self._gain[mover][None, :])
             g_in = np.ascontiguousarray(self._gain[:, mover][None, :])
         else:  # the field of the mover's links at each candidate (symmetric: one table both ways)
-            g_out = np.ascontiguousarray(links.eirp_dbm - links.field.row_db(mover, self.positions_m, cand))
+            rows = self.field_rows(mover, cand) if field_db is None else field_db
+            g_out = np.ascontiguousarray(links.eirp_dbm - rows)
             g_in = g_out
         (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links._kernel_args
         return team_move_objective(
@@ -123,9 +137,19 @@ class TeamSearchResult:
     rounds: tuple[int, ...]
 
 
-def _grid_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: float) -> FloatArray:
-    """The points of a square grid of pitch ``pitch_m`` and half-width ``half_m`` around ``center_m``
-    that lie in ``reach`` (the whole set's bounding box when ``half_m`` is inf)."""
+@dataclass(frozen=True)
+class _Lattice:
+    """The points of a square lattice that lie in a reachable set: ``points_m`` [M, 2] are the lattice
+    points ``origin_m + (ix, iy) * pitch_m`` (``shape = (nx, ny)``, order ``ix * ny + iy``) where ``keep``."""
+
+    points_m: FloatArray
+    origin_m: FloatArray
+    pitch_m: float
+    shape: tuple[int, int]
+    keep: NDArray[np.bool_]
+
+
+def _lattice_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: float) -> _Lattice:
     if np.isinf(half_m):
         lo, hi = reach.bounds()
     else:
@@ -133,7 +157,14 @@ def _grid_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: 
     axes = [np.arange(lo[c], hi[c] + 0.5 * pitch_m, pitch_m) for c in range(2)]
     gx, gy = np.meshgrid(*axes, indexing="ij")
     pts = np.stack((gx.ravel(), gy.ravel()), axis=1)
-    return pts[reach.contains(pts)]
+    keep = reach.contains(pts)
+    return _Lattice(pts[keep], np.array([axes[0][0], axes[1][0]]), float(pitch_m), (axes[0].size, axes[1].size), keep)
+
+
+def _grid_in(reach: ReachableSet, center_m: FloatArray, half_m: float, pitch_m: float) -> FloatArray:
+    """The points of a square grid of pitch ``pitch_m`` and half-width ``half_m`` around ``center_m``
+    that lie in ``reach`` (the whole set's bounding box when ``half_m`` is inf)."""
+    return _lattice_in(reach, center_m, half_m, pitch_m).points_m
 
 
 def _single_move(
@@ -142,13 +173,19 @@ def _single_move(
     j_now: float,
     i: int,
     reaches: dict[int, ReachableSet],
-    coarse: dict[int, FloatArray],
+    coarse: dict[int, _Lattice],
     grids_m: Sequence[float],
     tol: float,
 ) -> tuple[FloatArray, float]:
     """Vehicle ``i`` to its best position for the team, the others fixed (coarse grid, then finer ones)."""
-    cand = np.concatenate([pos[i][None], coarse[i]])
-    vals = objective.move_values(i, cand)
+    lat = coarse[i]
+    cand = np.concatenate([pos[i][None], lat.points_m])
+    field_db = None
+    field = objective.links.field
+    if field is not None:  # the coarse lattice's field by rotation, the current position directly
+        on_lattice = field.lattice_row_db(i, objective.positions_m, lat.origin_m, lat.pitch_m, lat.shape)[lat.keep]
+        field_db = np.concatenate([objective.field_rows(i, pos[i][None]), on_lattice])
+    vals = objective.move_values(i, cand, field_db)
     b = int(np.argmax(vals))
     x_best, j_best = cand[b].copy(), float(vals[b])
     for coarse_pitch, pitch in pairwise(grids_m):
@@ -178,13 +215,13 @@ def _pair_move(
     j_now: float,
     a: int,
     b: int,
-    coarse: dict[int, FloatArray],
+    coarse: dict[int, _Lattice],
     count: int,
     tol: float,
 ) -> tuple[FloatArray, float]:
     """Vehicles ``a`` and ``b`` jointly to their best pair of thinned coarse-grid positions, if it raises ``J``."""
-    grid_a = np.concatenate([pos[a][None], _thin(coarse[a], count)])
-    grid_b = np.concatenate([pos[b][None], _thin(coarse[b], count)])
+    grid_a = np.concatenate([pos[a][None], _thin(coarse[a].points_m, count)])
+    grid_b = np.concatenate([pos[b][None], _thin(coarse[b].points_m, count)])
     trial = pos.copy()
     best = (j_now, pos[a].copy(), pos[b].copy())
     for xa in grid_a:
@@ -258,7 +295,7 @@ def team_search(
     n = int(np.asarray(env.positions_m).shape[0])
     who = list(range(n)) if movers is None else [int(i) for i in movers]
     reaches = {i: reachable_set(env, i) for i in who}
-    coarse = {i: _grid_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in who}
+    coarse = {i: _lattice_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in who}
     starts = (
         [np.array(env.positions_m, dtype=np.float64)]
         if starts_m is None

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig
-from cv2x_marl.sim.kernels.field import field_row_db, field_shadow_db
+from cv2x_marl.sim.kernels.field import field_row_db, field_row_lattice_db, field_shadow_db
 
 FloatArray = NDArray[np.float64]
 
@@ -157,6 +157,18 @@ class ShadowField:
         pos = np.ascontiguousarray(positions_m, dtype=np.float64)
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         return field_row_db(cand, pos, int(mover), *self._kernel_arrays())
+
+    def lattice_row_db(
+        self, mover: int, positions_m: FloatArray, origin_m: FloatArray, pitch_m: float, shape: tuple[int, int]
+    ) -> FloatArray:
+        """[nx * ny, N] :meth:`row_db` at the lattice ``origin + (ix, iy) * pitch``, ``shape = (nx, ny)``
+        (candidate ``ix * ny + iy``): the same values to 1e-9 dB at two ``cos`` per lattice column and
+        wave instead of one per point (:func:`cv2x_marl.sim.kernels.field.field_row_lattice_db`)."""
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        nx, ny = int(shape[0]), int(shape[1])
+        return field_row_lattice_db(
+            float(origin_m[0]), float(origin_m[1]), float(pitch_m), nx, ny, pos, int(mover), *self._kernel_arrays()
+        )
 
     def _shadow_db_numpy(self, positions_m: FloatArray) -> FloatArray:
         """The numpy reference of :meth:`shadow_db`."""

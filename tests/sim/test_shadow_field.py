@@ -248,3 +248,22 @@ def test_sensed_row_keeps_the_own_shadowing_measured_where_it_stands(links_with_
         np.testing.assert_allclose(
             sl.sensed_row(mover, pos).success(cand), frozen.sensed_row(mover, pos).success(cand), rtol=1e-12, atol=1e-15
         )
+
+
+def test_lattice_rows_equal_the_rows() -> None:
+    """The rotation recurrence of lattice_row_db against row_db at the same points: 1e-9 dB (measured
+    about 1e-10 over 51 steps with the heavy tail of the wave numbers)."""
+    field, start = _draw(12, 4, 0.5)
+    rng = np.random.default_rng(5)
+    pos = start + rng.uniform(-30.0, 30.0, size=start.shape)
+    for mover, pitch, shape in ((0, 20.0, (51, 51)), (5, 1.0, (11, 7)), (11, 5.0, (3, 40))):
+        origin = pos[mover] - 0.5 * pitch * np.array(shape)
+        axes = [origin[c] + np.arange(shape[c]) * pitch for c in range(2)]
+        gx, gy = np.meshgrid(*axes, indexing="ij")
+        pts = np.stack((gx.ravel(), gy.ravel()), axis=1)
+        got = field.lattice_row_db(mover, pos, origin, pitch, shape)
+        np.testing.assert_allclose(got, field.row_db(mover, pos, pts), rtol=0, atol=1e-9)
+    # a lattice point at the start of an unmoved scene: exactly the snapshot's value
+    got = field.lattice_row_db(2, start, start[2], 1.0, (1, 1))[0]
+    keep = np.arange(start.shape[0]) != 2
+    assert np.array_equal(got[keep], field.shadow0_db[2, keep])

@@ -20,7 +20,7 @@ powers), :mod:`.snapshot` (every link of a snapshot, one mover's row, eq. 12 sum
 :mod:`.team` (the team objective when one vehicle moves). This package re-exports their public names.
 """
 
-from cv2x_marl.sim.kernels.field import field_row_db, field_shadow_db, pair_field_db
+from cv2x_marl.sim.kernels.field import field_row_db, field_row_lattice_db, field_shadow_db, pair_field_db
 from cv2x_marl.sim.kernels.pairs import (
     active_links,
     filter_pairs_within_range,
@@ -84,6 +84,7 @@ __all__ = [
     "chunk_tile_subframes",
     "db_below",
     "field_row_db",
+    "field_row_lattice_db",
     "field_shadow_db",
     "filter_pairs_within_range",
     "interp_clamped",
