@@ -78,6 +78,11 @@ class MoverLinks:
         interferer_mw: [B, N, C] the individual terms (Rayleigh closed form), zero-padded.
         start_m: [B, 2] mover positions in the snapshots.
         mover: [B] index of the mover in each snapshot.
+        truth_los: ``snapshot``, ``geometry`` or ``always`` (module docstring).
+        fields: per snapshot its shadowing field (:class:`~cv2x_marl.sim.shadow_field.ShadowField`,
+            None: the snapshot's shadowing), or None for none at all. With a field the mover's links read
+            it with the mover at the evaluated position and the receivers at ``rx_pos_m``; the
+            interference stays the snapshot's (the receivers and the interferers do not move).
     """
 
     config: ScenarioConfig
@@ -91,6 +96,7 @@ class MoverLinks:
     start_m: FloatArray
     mover: NDArray[np.int64]
     truth_los: str = "snapshot"
+    fields: tuple[ShadowField | None, ...] | None = None
 
     @classmethod
     def from_snapshots(
@@ -100,8 +106,10 @@ class MoverLinks:
         movers: Sequence[int],
         truth_los: str = "snapshot",
         neighbourhood_m: float | None = None,
+        fields: Sequence[ShadowField | None] | None = None,
     ) -> MoverLinks:
-        """Collect the mover links of each snapshot (all with the same vehicle count)."""
+        """Collect the mover links of each snapshot (all with the same vehicle count); ``fields``: one
+        shadowing field (or None) per snapshot, drawn at the snapshot's positions."""
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
         road = Road.from_config(config.road)
@@ -150,7 +158,12 @@ class MoverLinks:
         for k, t in enumerate(terms):
             interferer[k, :, : t.shape[1]] = t
         start = rx_pos[np.arange(b), np.asarray(movers)]
-        return cls(config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los)
+        if fields is not None and len(fields) != b:
+            raise ValueError(f"fields must hold one entry per snapshot ({b}), got {len(fields)}")
+        return cls(
+            config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los,
+            None if fields is None else tuple(fields),
+        )  # fmt: skip
 
     def take(self, index: NDArray[np.int64]) -> MoverLinks:
         """The mover links of snapshots ``index`` [M] (repeats allowed: M copies of one snapshot
@@ -167,6 +180,7 @@ class MoverLinks:
             self.start_m[index],
             self.mover[index],
             self.truth_los,
+            None if self.fields is None else tuple(self.fields[int(k)] for k in np.asarray(index)),
         )
 
     def _los_at(self, pos_m: FloatArray) -> NDArray[np.bool_]:
@@ -179,6 +193,16 @@ class MoverLinks:
         hc, vc = self.road.corridors(self.rx_pos_m.reshape(-1, 2))
         return Road.corridor_los((hc.reshape(b, n), vc.reshape(b, n)), (hc_m[:, None], vc_m[:, None]))
 
+    def _shadow_at(self, pos_m: FloatArray) -> FloatArray:
+        """[B, N] shadowing of the mover links with each mover at ``pos_m`` [B, 2] (the fields', where set)."""
+        if self.fields is None:
+            return self.shadow_db
+        out = self.shadow_db.copy()
+        for b, field in enumerate(self.fields):  # one row per copy that has a field
+            if field is not None:
+                out[b] = field.row_db(int(self.mover[b]), self.rx_pos_m[b], pos_m[b : b + 1])[0]
+        return out
+
     def success(self, pos_m: FloatArray) -> FloatArray:
         """[B, N] expected success probability of the mover's packet at each receiver.
 
@@ -189,7 +213,9 @@ class MoverLinks:
             P per receiver; 0 for non-targets (and for receivers below the sensitivity).
         """
         cfg = self.config
-        s_dbm = mean_rx_dbm(cfg, self.road, pos_m[:, None, :], self.rx_pos_m, self._los_at(pos_m), self.shadow_db)
+        s_dbm = mean_rx_dbm(
+            cfg, self.road, pos_m[:, None, :], self.rx_pos_m, self._los_at(pos_m), self._shadow_at(pos_m)
+        )
         s_mw = db_to_linear(s_dbm)
         noise_mw = float(db_to_linear(noise_power_dbm(cfg.radio.noise_dbm, cfg.radio.noise_figure_db)))
         if cfg.link.model == "rayleigh":

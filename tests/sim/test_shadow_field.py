@@ -267,3 +267,21 @@ def test_lattice_rows_equal_the_rows() -> None:
     got = field.lattice_row_db(2, start, start[2], 1.0, (1, 1))[0]
     keep = np.arange(start.shape[0]) != 2
     assert np.array_equal(got[keep], field.shadow0_db[2, keep])
+
+
+def test_mover_links_with_fields_equal_the_snapshot_links_row(links_with_field) -> None:
+    """MoverLinks with a field per copy (and a copy without): row `mover` of SnapshotLinks with the same
+    field, the mover moved, the others at the snapshot (1e-9)."""
+    from cv2x_marl.sim.ground_truth import MoverLinks, SnapshotLinks
+
+    sl, _ref, snap = links_with_field
+    movers = [2, 9, 2]
+    ml = MoverLinks.from_snapshots(sl.config, [snap, snap, snap], movers, fields=[sl.field, sl.field, None])
+    moved = ml.start_m + np.random.default_rng(4).uniform(-40.0, 40.0, size=(3, 2))
+    got = ml.success(moved)
+    plain = SnapshotLinks(sl.config, snap)
+    for b, (i, links) in enumerate(zip(movers, (sl, sl, plain), strict=True)):
+        pos = snap.positions_m.copy()
+        pos[i] = moved[b]
+        np.testing.assert_allclose(got[b], np.where(ml.target[b], links.success(pos)[i], 0.0), rtol=1e-9, atol=1e-12)
+    assert ml.take(np.array([1, 1])).fields == (sl.field, sl.field)
