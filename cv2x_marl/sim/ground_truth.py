@@ -545,7 +545,7 @@ class MoverRow:
         stands for the sensing estimate) or [M, N] (the field at each candidate)."""
         if self._field is None:
             return self._args[4][None, :]
-        return np.ascontiguousarray(self.links.eirp_dbm - self._field.row_db(self.mover, self.positions_m, cand))
+        return np.ascontiguousarray(self.links.eirp_dbm - self._field.rows_db(self.mover, self.positions_m, cand))
 
     def _kernel_args(self, cand: FloatArray) -> tuple[Any, ...]:
         """The arguments of the row kernels after ``candidates_m``, with the gains of :meth:`_gain_rows`."""

@@ -285,3 +285,22 @@ def test_mover_links_with_fields_equal_the_snapshot_links_row(links_with_field) 
         pos[i] = moved[b]
         np.testing.assert_allclose(got[b], np.where(ml.target[b], links.success(pos)[i], 0.0), rtol=1e-9, atol=1e-12)
     assert ml.take(np.array([1, 1])).fields == (sl.field, sl.field)
+
+
+def test_rows_on_a_search_grid_use_the_lattice_and_equal_row_db() -> None:
+    """A search's candidates (the start, then a linspace grid filtered to a disc) are recognised as a lattice;
+    rows_db equals row_db to 1e-9 dB; scattered candidates fall back to row_db."""
+    from cv2x_marl.sim.shadow_field import square_lattice
+
+    field, start = _draw(10, 6)
+    pos = start.copy()
+    axes = [np.linspace(pos[3, c] - 100.0, pos[3, c] + 100.0, 41) for c in range(2)]
+    gx, gy = np.meshgrid(*axes, indexing="ij")
+    grid = np.stack((gx.ravel(), gy.ravel()), axis=1)
+    grid = grid[np.hypot(*(grid - pos[3]).T) <= 100.0]
+    cand = np.concatenate([pos[3][None] + 0.3, grid])
+    assert square_lattice(cand) is None and square_lattice(grid) is not None
+    np.testing.assert_allclose(field.rows_db(3, pos, cand), field.row_db(3, pos, cand), rtol=0, atol=1e-9)
+    scattered = pos[3] + np.random.default_rng(0).uniform(-50.0, 50.0, size=(100, 2))
+    assert square_lattice(scattered) is None
+    assert np.array_equal(field.rows_db(3, pos, scattered), field.row_db(3, pos, scattered))
