@@ -6,7 +6,9 @@
     oracle              :class:`~cv2x_marl.policies.scripted.OraclePolicy` (the true gradient)
     planner | sensing   :class:`~cv2x_marl.policies.planner.PlannerPolicy` (the model's / the sensing
                         plan's best reachable position)
-    optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator)
+    optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
+                        the team search where the team is rewarded and every vehicle moves)
+    best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
     ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save)
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
@@ -19,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.policies.optimum import OptimumPolicy
+from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
@@ -29,7 +31,7 @@ if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 #: the scripted policies, by name (what a baseline file's ``policy:`` may name)
-SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum")
+SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum", "best-response")
 #: the scripted policies that read a two-distance model
 MODELLED = ("gbmu", "greedy", "planner", "sensing")
 #: the prefix of a PPO model file (``ppo:PATH``)
@@ -37,7 +39,7 @@ PPO_PREFIX = "ppo:"
 
 
 def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delta: float = 100.0) -> Policy:
-    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH``.
+    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response | ppo:PATH``.
 
     Args:
         spec: the policy's name (:data:`SCRIPTED`) or ``ppo:PATH``.
@@ -57,6 +59,8 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         return OraclePolicy(env, delta=delta)
     if spec == "optimum":
         return OptimumPolicy(env)
+    if spec == "best-response":
+        return BestResponsePolicy(env)
     if spec in ("planner", "sensing"):
         estimator = "model" if spec == "planner" else "sensing"
         return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)

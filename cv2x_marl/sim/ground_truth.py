@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -78,6 +78,11 @@ class MoverLinks:
         interferer_mw: [B, N, C] the individual terms (Rayleigh closed form), zero-padded.
         start_m: [B, 2] mover positions in the snapshots.
         mover: [B] index of the mover in each snapshot.
+        truth_los: ``snapshot``, ``geometry`` or ``always`` (module docstring).
+        fields: per snapshot its shadowing field (:class:`~cv2x_marl.sim.shadow_field.ShadowField`,
+            None: the snapshot's shadowing), or None for none at all. With a field the mover's links read
+            it with the mover at the evaluated position and the receivers at ``rx_pos_m``; the
+            interference stays the snapshot's (the receivers and the interferers do not move).
     """
 
     config: ScenarioConfig
@@ -91,6 +96,7 @@ class MoverLinks:
     start_m: FloatArray
     mover: NDArray[np.int64]
     truth_los: str = "snapshot"
+    fields: tuple[ShadowField | None, ...] | None = None
 
     @classmethod
     def from_snapshots(
@@ -100,8 +106,10 @@ class MoverLinks:
         movers: Sequence[int],
         truth_los: str = "snapshot",
         neighbourhood_m: float | None = None,
+        fields: Sequence[ShadowField | None] | None = None,
     ) -> MoverLinks:
-        """Collect the mover links of each snapshot (all with the same vehicle count)."""
+        """Collect the mover links of each snapshot (all with the same vehicle count); ``fields``: one
+        shadowing field (or None) per snapshot, drawn at the snapshot's positions."""
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
         road = Road.from_config(config.road)
@@ -150,7 +158,12 @@ class MoverLinks:
         for k, t in enumerate(terms):
             interferer[k, :, : t.shape[1]] = t
         start = rx_pos[np.arange(b), np.asarray(movers)]
-        return cls(config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los)
+        if fields is not None and len(fields) != b:
+            raise ValueError(f"fields must hold one entry per snapshot ({b}), got {len(fields)}")
+        return cls(
+            config, road, rx_pos, target, los, shadow, interf, interferer, start, np.asarray(movers), truth_los,
+            None if fields is None else tuple(fields),
+        )  # fmt: skip
 
     def take(self, index: NDArray[np.int64]) -> MoverLinks:
         """The mover links of snapshots ``index`` [M] (repeats allowed: M copies of one snapshot
@@ -167,6 +180,7 @@ class MoverLinks:
             self.start_m[index],
             self.mover[index],
             self.truth_los,
+            None if self.fields is None else tuple(self.fields[int(k)] for k in np.asarray(index)),
         )
 
     def _los_at(self, pos_m: FloatArray) -> NDArray[np.bool_]:
@@ -179,6 +193,16 @@ class MoverLinks:
         hc, vc = self.road.corridors(self.rx_pos_m.reshape(-1, 2))
         return Road.corridor_los((hc.reshape(b, n), vc.reshape(b, n)), (hc_m[:, None], vc_m[:, None]))
 
+    def _shadow_at(self, pos_m: FloatArray) -> FloatArray:
+        """[B, N] shadowing of the mover links with each mover at ``pos_m`` [B, 2] (the fields', where set)."""
+        if self.fields is None:
+            return self.shadow_db
+        out = self.shadow_db.copy()
+        for b, field in enumerate(self.fields):  # one row per copy that has a field
+            if field is not None:
+                out[b] = field.row_db(int(self.mover[b]), self.rx_pos_m[b], pos_m[b : b + 1])[0]
+        return out
+
     def success(self, pos_m: FloatArray) -> FloatArray:
         """[B, N] expected success probability of the mover's packet at each receiver.
 
@@ -189,7 +213,9 @@ class MoverLinks:
             P per receiver; 0 for non-targets (and for receivers below the sensitivity).
         """
         cfg = self.config
-        s_dbm = mean_rx_dbm(cfg, self.road, pos_m[:, None, :], self.rx_pos_m, self._los_at(pos_m), self.shadow_db)
+        s_dbm = mean_rx_dbm(
+            cfg, self.road, pos_m[:, None, :], self.rx_pos_m, self._los_at(pos_m), self._shadow_at(pos_m)
+        )
         s_mw = db_to_linear(s_dbm)
         noise_mw = float(db_to_linear(noise_power_dbm(cfg.radio.noise_dbm, cfg.radio.noise_figure_db)))
         if cfg.link.model == "rayleigh":
@@ -352,7 +378,7 @@ class SnapshotLinks:
             hc, vc = self.road.corridors(positions_m)
             los = Road.corridor_los((hc[:, None], vc[:, None]), (hc[None, :], vc[None, :]))
         pos = np.asarray(positions_m, dtype=np.float64)
-        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos)
+        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos, compiled=self.compiled)
         dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, shadow)
         dbm[np.diag_indices(self.n)] = -np.inf
         if self._range2 is not None:
@@ -397,21 +423,36 @@ class SnapshotLinks:
         """
         return self.evaluate(positions_m)[0]
 
+    def gain_db(self, positions_m: FloatArray) -> FloatArray:
+        """[N, N] EIRP minus the shadowing of every pair (dBm) with the vehicles at ``positions_m``
+        [N, 2]: the snapshot's (``positions_m`` unused) or, with a field, the field's there. Compiled
+        path only (the kernels' ``gain_db``)."""
+        if self.field is None:
+            return self._kernel_args[2]
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        return np.ascontiguousarray(self.eirp_dbm - self.field.shadow_db(pos))
+
+    def _check_row(self, mover: int, positions_m: FloatArray) -> FloatArray:
+        if not 0 <= mover < self.n:
+            raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        if pos.shape != (self.n, 2):
+            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
+        return pos
+
     def mover_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
         """The links of one transmitter as a function of its own position, the others where they are.
+
+        With a shadowing field (:attr:`field`) the mover's own links read the field with the mover at
+        each candidate and the others at ``positions_m``; the interference at each receiver (from the
+        other transmitters) reads it at ``positions_m``: row ``mover`` of :meth:`evaluate` with the
+        mover at the candidate (tested).
 
         Args:
             mover: index of the transmitter that moves.
             positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
         """
-        if not 0 <= mover < self.n:
-            raise ValueError(f"mover must be a vehicle index 0 .. {self.n - 1}, got {mover}")
-        if self.field is not None:
-            raise NotImplementedError("mover_row with a shadowing field")
-        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
-        if pos.shape != (self.n, 2):
-            raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
-        return MoverRow(self, int(mover), pos)
+        return MoverRow(self, int(mover), self._check_row(mover, positions_m))
 
     def sensed_row(self, mover: int, positions_m: FloatArray) -> MoverRow:
         """The mover's own estimate of its links (what it can know from Mode 4 sensing), not the truth.
@@ -426,14 +467,22 @@ class SnapshotLinks:
         are the snapshot's (in the Manhattan grid they follow from the road map). Used by the
         ``-v2`` observation and the ``sensing`` planner; compiled kernels only.
 
+        With a shadowing field (:attr:`field`) the vehicle knows its links' shadowing only where it
+        stands (what it measured there): for every candidate position the estimate keeps the own
+        links' shadowing at ``positions_m`` (path loss from the candidate, shadowing from here), so it
+        differs from the truth by the field's change between here and the candidate (TR 36.885 A.1.4:
+        correlation ``exp(-r / d)`` at a distance r).
+
         Args:
             mover: index of the transmitter that moves.
             positions_m: [N, 2] positions of every vehicle (the mover's row is where it starts).
         """
         if not self.compiled:
             raise ValueError("sensed_row needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
-        row = self.mover_row(mover, positions_m)
-        (period, los, gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        pos = self._check_row(mover, positions_m)
+        row = MoverRow(self, int(mover), pos, follow_field=False)
+        (period, los, _gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        gain = self.gain_db(pos)
         own = np.zeros((self.n, self.n), dtype=bool)
         own[mover, :] = own[:, mover] = True
         sensed_gain = np.ascontiguousarray(np.where(own, gain, self.eirp_dbm))
@@ -449,25 +498,36 @@ class MoverRow:
 
     With the other vehicles fixed, the interference on the mover's links does not depend on where
     the mover stands (a transmitter never interferes with its own packet), so it is computed once;
-    each candidate position then costs one path loss per target receiver. Compiled: the additions of
-    :func:`cv2x_marl.sim.kernels.snapshot_links` in the same order (bit-identical to the row of a
-    full evaluation, tested); otherwise one full numpy evaluation per candidate.
+    each candidate position then costs one path loss per target receiver (and, with a shadowing
+    field, the field of each of its links there: :meth:`ShadowField.row_db`). Compiled: the additions
+    of :func:`cv2x_marl.sim.kernels.snapshot_links` in the same order (bit-identical to the row of a
+    full evaluation without a field, tested; with a field equal to the field's tolerance);
+    otherwise one full numpy evaluation per candidate.
+
+    Args:
+        links: the snapshot's links.
+        mover: the transmitter that moves.
+        positions_m: [N, 2] every vehicle's position (m).
+        follow_field: with a field, whether the mover's own links read it at each candidate (the
+            truth) or keep its values at ``positions_m`` (the sensing estimate, :meth:`SnapshotLinks.sensed_row`).
     """
 
-    def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray) -> None:
+    def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray, follow_field: bool = True) -> None:
         self.links = links
         self.mover = mover
         self.positions_m = positions_m
         self.target_row = np.ascontiguousarray(links.target[mover])
+        self._field = links.field if follow_field else None
         if links.compiled:
-            (period, los, gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            gain = links.gain_db(positions_m)  # the interference at each receiver: the field here
             interference = kernels.mover_interference(positions_m, period, los, gain, wb1, range2, idx, val, mover)
-            self._args = (
+            self._args: tuple[Any, ...] = (
                 positions_m,
                 mover,
                 period,
                 np.ascontiguousarray(los[mover]),
-                np.ascontiguousarray(gain[mover]),
+                np.ascontiguousarray(gain[mover]),  # [N]: the own links' gains where the mover stands
                 wb1,
                 range2,
                 interference,
@@ -480,11 +540,23 @@ class MoverRow:
                 self.target_row,
             )
 
+    def _gain_rows(self, cand: FloatArray) -> FloatArray:
+        """[G, N] the own links' gains: [1, N] (the snapshot's shadowing, or the field where the mover
+        stands for the sensing estimate) or [M, N] (the field at each candidate)."""
+        if self._field is None:
+            return self._args[4][None, :]
+        return np.ascontiguousarray(self.links.eirp_dbm - self._field.rows_db(self.mover, self.positions_m, cand))
+
+    def _kernel_args(self, cand: FloatArray) -> tuple[Any, ...]:
+        """The arguments of the row kernels after ``candidates_m``, with the gains of :meth:`_gain_rows`."""
+        a = self._args
+        return (*a[:4], self._gain_rows(cand), *a[5:])
+
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         if self.links.compiled:
-            return kernels.mover_row_success(cand, *self._args)
+            return kernels.mover_row_success(cand, *self._kernel_args(cand))
         out = np.empty((cand.shape[0], self.links.n))
         pos = self.positions_m.copy()
         for m, c in enumerate(cand):  # reference path (power law, geometry LOS): one evaluation each
@@ -497,9 +569,14 @@ class MoverRow:
         (compiled: :func:`cv2x_marl.sim.kernels.mover_row_utility`, bit-identical to the utility of
         :meth:`success`)."""
         cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
-        if self.links.compiled:
-            return kernels.mover_row_utility(np.ascontiguousarray(cand), *self._args, float(p_min))
+        if self.links.compiled and self._field is None:
+            c = np.ascontiguousarray(cand)
+            return kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
         out = np.empty(cand.shape[0])
         for lo in range(0, cand.shape[0], chunk):
-            out[lo : lo + chunk] = kernels.row_utility(self.success(cand[lo : lo + chunk]), self.target_row, p_min)
+            c = np.ascontiguousarray(cand[lo : lo + chunk])
+            if self.links.compiled:
+                out[lo : lo + chunk] = kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
+            else:
+                out[lo : lo + chunk] = kernels.row_utility(self.success(c), self.target_row, p_min)
         return out

@@ -36,11 +36,13 @@ ceiling's search read one field.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.config import ScenarioConfig
+from cv2x_marl.sim.kernels.field import field_row_db, field_row_lattice_db, field_shadow_db
 
 FloatArray = NDArray[np.float64]
 
@@ -115,9 +117,77 @@ class ShadowField:
         """Number of vehicles."""
         return int(self.start_m.shape[0])
 
-    def shadow_db(self, positions_m: FloatArray) -> FloatArray:
+    @cached_property
+    def g0(self) -> FloatArray:
+        """[N, N] the unit field ``G`` of each pair at the start positions (the pair ``(a, b)``'s draws
+        at ``[min, max]``, mirrored)."""
+        g = np.sqrt(2.0 / self.phase.shape[-1]) * np.cos(self.phase).sum(axis=-1)
+        upper = np.triu(np.ones((self.n, self.n), dtype=bool), 1)
+        return np.ascontiguousarray(np.where(upper, g, g.T))
+
+    def _kernel_arrays(self) -> tuple:
+        return (
+            self.start_m, self.shadow0_db, self.sigma_db, float(self.decorrelation_m), self.k_lo, self.k_hi,
+            self.phase, self.g0,
+        )  # fmt: skip
+
+    def shadow_db(self, positions_m: FloatArray, compiled: bool = True) -> FloatArray:
         """[N, N] shadowing of every pair with the vehicles at ``positions_m`` [N, 2] (dB, symmetric,
-        0 on the diagonal); equal to ``shadow0_db`` at ``start_m``. Numpy reference."""
+        0 on the diagonal); equal to ``shadow0_db`` at ``start_m`` (exactly, pair by pair: a pair
+        neither of whose ends moved keeps its snapshot value).
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+            compiled: the numba kernel :func:`cv2x_marl.sim.kernels.field.field_shadow_db` (default);
+                False: the numpy reference below (equal to about 1e-12 dB: numba's and numpy's
+                ``cos`` / ``exp`` differ in the last ulps).
+        """
+        if compiled:
+            pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+            if pos.shape != (self.n, 2):
+                raise ValueError(f"positions_m must have shape ({self.n}, 2), got {pos.shape}")
+            return field_shadow_db(pos, *self._kernel_arrays())
+        return self._shadow_db_numpy(positions_m)
+
+    def row_db(self, mover: int, positions_m: FloatArray, candidates_m: FloatArray) -> FloatArray:
+        """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m) and every other
+        vehicle at ``positions_m`` [N, 2] (dB; 0 in column ``mover``): row ``mover`` of
+        :meth:`shadow_db` with the mover at each candidate, compiled
+        (:func:`cv2x_marl.sim.kernels.field.field_row_db`)."""
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
+        return field_row_db(cand, pos, int(mover), *self._kernel_arrays())
+
+    def rows_db(self, mover: int, positions_m: FloatArray, candidates_m: FloatArray) -> FloatArray:
+        """:meth:`row_db`, by :meth:`lattice_row_db` where the candidates (all, or all but the first, as a
+        search lays them: the start, then a grid) sit on a square lattice of at least 64 points that
+        they fill to at least a quarter; equal to :meth:`row_db` to 1e-9 dB either way."""
+        cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
+        for skip in (0, 1):
+            lat = square_lattice(cand[skip:])
+            if lat is None:
+                continue
+            origin, pitch, shape, index = lat
+            rows = self.lattice_row_db(mover, positions_m, origin, pitch, shape)[index]
+            if skip:
+                rows = np.concatenate([self.row_db(mover, positions_m, cand[:1]), rows])
+            return rows
+        return self.row_db(mover, positions_m, cand)
+
+    def lattice_row_db(
+        self, mover: int, positions_m: FloatArray, origin_m: FloatArray, pitch_m: float, shape: tuple[int, int]
+    ) -> FloatArray:
+        """[nx * ny, N] :meth:`row_db` at the lattice ``origin + (ix, iy) * pitch``, ``shape = (nx, ny)``
+        (candidate ``ix * ny + iy``): the same values to 1e-9 dB at two ``cos`` per lattice column and
+        wave instead of one per point (:func:`cv2x_marl.sim.kernels.field.field_row_lattice_db`)."""
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        nx, ny = int(shape[0]), int(shape[1])
+        return field_row_lattice_db(
+            float(origin_m[0]), float(origin_m[1]), float(pitch_m), nx, ny, pos, int(mover), *self._kernel_arrays()
+        )
+
+    def _shadow_db_numpy(self, positions_m: FloatArray) -> FloatArray:
+        """The numpy reference of :meth:`shadow_db`."""
         pos = np.asarray(positions_m, dtype=np.float64)
         n = self.n
         disp = pos - self.start_m  # [N, 2]
@@ -137,3 +207,29 @@ class ShadowField:
         s = rho * self.shadow0_db + self.sigma_db * (g - rho * g0)
         s[np.diag_indices(n)] = 0.0
         return s
+
+
+def square_lattice(
+    points_m: FloatArray, min_points: int = 64, tol_m: float = 1e-9
+) -> tuple[FloatArray, float, tuple[int, int], NDArray[np.int64]] | None:
+    """Whether ``points_m`` [M, 2] lie on one square lattice ``origin + (ix, iy) * pitch`` (to ``tol_m``
+    relative): ``(origin_m [2], pitch_m, (nx, ny), index [M] = ix * ny + iy)``, or None (fewer than
+    ``min_points`` points, off a lattice, or filling less than a quarter of its bounding lattice)."""
+    pts = np.asarray(points_m, dtype=np.float64)
+    if pts.shape[0] < min_points:
+        return None
+    ux, uy = np.unique(pts[:, 0]), np.unique(pts[:, 1])
+    if ux.size < 2 or uy.size < 2:
+        return None
+    pitch = float(min(np.diff(ux).min(), np.diff(uy).min()))
+    if not pitch > 0:
+        return None
+    origin = np.array([ux[0], uy[0]])
+    idx = np.rint((pts - origin) / pitch)
+    scale = max(1.0, float(np.abs(pts).max()))
+    if np.abs(origin + idx * pitch - pts).max() > tol_m * scale:
+        return None
+    nx, ny = int(idx[:, 0].max()) + 1, int(idx[:, 1].max()) + 1
+    if nx * ny > 4 * pts.shape[0]:
+        return None
+    return origin, pitch, (nx, ny), (idx[:, 0] * ny + idx[:, 1]).astype(np.int64)

@@ -16,9 +16,11 @@ Compiled code is cached on disk (``cache=True``): the first call in a fresh chec
 Modules: :mod:`.pathloss` (WINNER+ B1), :mod:`.per` (PER curves and the threshold model), :mod:`.pairs`
 (pairs within range, pair geometry, link indexing), :mod:`.shadowing` (correlated shadowing, received
 powers), :mod:`.snapshot` (every link of a snapshot, one mover's row, eq. 12 summaries), :mod:`.period`
-(one period of the subframe loop). This package re-exports their public names.
+(one period of the subframe loop), :mod:`.field` (the shadowing field that follows the vehicles),
+:mod:`.team` (the team objective when one vehicle moves). This package re-exports their public names.
 """
 
+from cv2x_marl.sim.kernels.field import field_row_db, field_row_lattice_db, field_shadow_db, pair_field_db
 from cv2x_marl.sim.kernels.pairs import (
     active_links,
     filter_pairs_within_range,
@@ -81,6 +83,9 @@ __all__ = [
     "active_links",
     "chunk_tile_subframes",
     "db_below",
+    "field_row_db",
+    "field_row_lattice_db",
+    "field_shadow_db",
     "filter_pairs_within_range",
     "interp_clamped",
     "levels_db",
@@ -90,6 +95,7 @@ __all__ = [
     "mover_interference",
     "mover_row_success",
     "mover_row_utility",
+    "pair_field_db",
     "pair_geometry",
     "pairs_within_range",
     "per_success",

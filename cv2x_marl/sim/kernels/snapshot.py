@@ -273,19 +273,25 @@ def mover_row_success(
         candidates_m: [M, 2] positions of the mover to evaluate (m).
         positions_m: [N, 2] positions of every vehicle (the mover's own row is ignored).
         mover: index of the moving transmitter.
-        los_row, gain_row_db, target_row: row ``mover`` of the arrays of :func:`snapshot_links`.
+        los_row, target_row: row ``mover`` of the arrays of :func:`snapshot_links`.
+        gain_row_db: [G, N] EIRP minus the shadowing of the mover's links (dBm): G = 1, row ``mover``
+            of :func:`snapshot_links`'s ``gain_db`` for every candidate (the snapshot's shadowing);
+            G = M, one row per candidate (a shadowing field that follows the mover,
+            :func:`cv2x_marl.sim.kernels.field.field_row_db`).
         interference_mw: [N] :func:`mover_interference` of the mover.
     """
     m_count = candidates_m.shape[0]
     n = positions_m.shape[0]
     level_db = levels_db(interference_mw, noise_mw)
     p = np.zeros((m_count, n))
+    per_candidate = gain_row_db.shape[0] > 1
     for m in range(m_count):
+        gain_m = gain_row_db[m if per_candidate else 0]
         for j in range(n):
             if target_row[j]:
                 s_dbm = moved_signal_dbm(
                     candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, j, period_m, los_row,
-                    gain_row_db, wb1, range2_m2,
+                    gain_m, wb1, range2_m2,
                 )  # fmt: skip
                 p[m, j] = success_at_level(s_dbm, level_db[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
     return p
@@ -311,22 +317,25 @@ def mover_row_utility(
     target_row: NDArray[np.bool_],
     p_min: float,
 ) -> FloatArray:
-    """[M] eq. 12 utility of ``mover`` at each candidate: :func:`row_utility` of
-    :func:`mover_row_success`, fused (no [M, N] table; the noise-plus-interference level of each
-    receiver computed once). The same operations in the same order, so bit-identical (tested); the
-    global searches of the optimum and the sensing plan run on it.
+    """[M] eq. 12 utility of ``mover`` at each candidate (arguments as :func:`mover_row_success`,
+    ``gain_row_db`` [G, N]): :func:`row_utility` of :func:`mover_row_success`, fused (no [M, N]
+    table; the noise-plus-interference level of each receiver computed once). The same operations
+    in the same order, so bit-identical (tested); the global searches of the optimum and the sensing
+    plan run on it.
     """
     m_count = candidates_m.shape[0]
     n = positions_m.shape[0]
     level_db = levels_db(interference_mw, noise_mw)
     out = np.zeros(m_count)
+    per_candidate = gain_row_db.shape[0] > 1
     for m in range(m_count):
+        gain_m = gain_row_db[m if per_candidate else 0]
         u = 0.0
         for j in range(n):
             if target_row[j]:
                 s_dbm = moved_signal_dbm(
                     candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, j, period_m, los_row,
-                    gain_row_db, wb1, range2_m2,
+                    gain_m, wb1, range2_m2,
                 )  # fmt: skip
                 x = success_at_level(s_dbm, level_db[j], model, per_sinr_db, per, threshold_db, sensitivity_dbm)
                 u += eq12_term(x, p_min)
