@@ -21,7 +21,7 @@ from cv2x_marl.experiments import evaluate as ev
 
 #: the ids the tests run in place of the tasks' new ids until those are merged; after the merge set
 #: ``STAND_IN_IDS = dict(tasks.TASK_ENV_IDS)`` (cooperative: best-response joins its methods)
-STAND_IN_IDS = {"singlemover": "cv2x/SingleMover-v2", "cooperative": "cv2x/Mobility-v2"}
+STAND_IN_IDS = dict(tasks.TASK_ENV_IDS)
 MODELS = Path(__file__).resolve().parents[1] / "agents" / "models"
 
 
