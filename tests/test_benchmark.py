@@ -105,7 +105,7 @@ def test_a_refused_policy_names_itself_the_task_and_the_allowed_ones() -> None:
 def test_evaluate_refuses_a_policy_its_task_refuses(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(tasks, "TASKS", stand_in_tasks())
     with pytest.raises(ValueError, match="policy 'best-response' cannot run on task singlemover"):
-        ev.evaluate("cv2x/SingleMover-v2", "best-response", 1, 0, progress=False)
+        ev.evaluate("cv2x/SingleMover-v3", "best-response", 1, 0, progress=False)
 
 
 # ------------------------------------------------------------------------------------ evaluate's flags
@@ -113,8 +113,8 @@ def test_parse_seeds(monkeypatch: pytest.MonkeyPatch) -> None:
     assert ev.parse_seeds("3, 1,2", None) == (3, 1, 2)
     assert ev.parse_seeds("7 8", None) == (7, 8)
     monkeypatch.setattr(tasks, "TASKS", stand_in_tasks())
-    assert ev.parse_seeds("heldout", "cv2x/SingleMover-v2") == tasks.TASKS["singlemover"].heldout_seeds
-    assert ev.parse_seeds("train", "cv2x/Mobility-v2") == tasks.TASKS["cooperative"].train_seeds
+    assert ev.parse_seeds("heldout", "cv2x/SingleMover-v3") == tasks.TASKS["singlemover"].heldout_seeds
+    assert ev.parse_seeds("train", "cv2x/Cooperative-v0") == tasks.TASKS["cooperative"].train_seeds
     for text, match in (
         ("1,x", "integers separated by commas"),
         ("-1", r"integers in \[0, 4294967295\]"),
