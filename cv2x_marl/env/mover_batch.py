@@ -47,6 +47,11 @@ def batch_problem(env: MobilityEnv) -> str | None:
     """Why ``env`` cannot be stepped by a :class:`MoverBatch` (None when it can)."""
     if env.fast_mover is None:
         return "it needs snapshot mode, exactly one mover and reward='individual'"
+    if env.layout.version == 3 or env.options.shadow_field:
+        return (
+            "the batched step does not follow the shadowing field nor refresh observation version 3's measurements "
+            "(the copies step one by one through MobilityEnv.step_mover)"
+        )
     if env.render_mode is not None:
         return "rendering needs the env objects' own state (render_mode is set)"
     if env.replan_every is not None:
