@@ -423,6 +423,7 @@ class MobilityEnv(ParallelEnv):
         self.tracks.append(pos.copy())
         v3 = self.layout.version == 3
         if self._mover_row is None or self._mover_row.mover != i:
+            self._mover_rows = np.array([i], dtype=np.int64)
             if v3 or self.links.field is not None:  # its row and (v3) its column, the field read once
                 self._mover_row = MoverLinksStep(self.links, i, pos, column=v3)
             else:
@@ -431,8 +432,8 @@ class MobilityEnv(ParallelEnv):
             self._mover_row.step(pos, self.link_p, self._rx_dbm if v3 else None)
         else:
             self.link_p[i] = self._mover_row.success(pos[i : i + 1])[0]
-        if v3:  # the period's draws for every pair, as step(); the mover's column of reports is exact
-            self.measure.update(self._rx_dbm, self.link_p)
+        if v3:  # the period's draws for every pair, as step(); the mover's column of reports
+            self.measure.update(self._rx_dbm, self.link_p, self._mover_rows)
         u, self.prr[i], self.jain[i], count = step_core.utility_of(
             self.link_p[i], self.target[i], self.p_min, self.normalise_reward
         )
@@ -448,7 +449,7 @@ class MobilityEnv(ParallelEnv):
                 self._best_m[i] = pos[i]
             self._maybe_replan()
         done = self.t >= self.max_cycles
-        rows = np.array([i], dtype=np.int64)
+        rows = self._mover_rows
         obs = self._build(rows)
         if v3:
             self._fill_v3(obs, rows)

@@ -484,14 +484,11 @@ def fill_own_v3(
         reach_m: moving steps left x ``max_step_m`` (m).
     """
     o = layout.own_v1_offset
-    vals = np.column_stack(
-        (
-            u_now,
-            10.0 * (u_now - u_prev),
-            drift_m[:, 0] / layout.scale_m,
-            drift_m[:, 1] / layout.scale_m,
-            np.full(len(u_now), time_left),
-            np.full(len(u_now), reach_m / layout.scale_m),
-        )
-    )
+    vals = np.empty((len(u_now), OWN_V3))
+    vals[:, 0] = u_now
+    vals[:, 1] = 10.0 * (u_now - u_prev)
+    vals[:, 2:4] = drift_m
+    vals[:, 2:4] /= layout.scale_m
+    vals[:, 4] = time_left
+    vals[:, 5] = reach_m / layout.scale_m
     obs[:, o : o + OWN_V3] = np.clip(vals, -layout.obs_clip, layout.obs_clip)

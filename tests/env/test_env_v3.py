@@ -25,7 +25,7 @@ def test_ids_registered() -> None:
     assert env_version("cv2x/Cooperative-v0") == "cooperative-v0"
     coop = make_parallel_env("cv2x/Cooperative-v0", max_cycles=5, **FAST)
     assert coop.reward_kind == "team" and coop.layout.version == 3 and coop.mover_mask.all()
-    assert make_parallel_env("cv2x/SingleMover-v3", max_cycles=5, **FAST).fast_mover is None
+    assert make_parallel_env("cv2x/SingleMover-v3", max_cycles=5, **FAST).fast_mover == 0  # tests/env/test_v3_fast.py
 
 
 def test_checkers_and_seeding() -> None:
