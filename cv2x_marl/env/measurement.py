@@ -114,8 +114,15 @@ class Measurements:
             np.full((n, n), np.nan),
             np.zeros((n, n), dtype=np.int64),
         )
-        for _ in range(window):
-            state.update(rx_dbm, p)
+        uniform, fade, normal = (np.empty((window, n, n)) for _ in range(3))
+        for k in range(window):  # the stream's order: per period U, then Exp(1), then N(0, 1)
+            rng.random(out=uniform[k])
+            rng.standard_exponential(out=fade[k])
+            rng.standard_normal(out=normal[k])
+        _start_window(
+            state.power_mw, state.count, state.rsrp_dbm, state.age, np.ascontiguousarray(rx_dbm),
+            np.ascontiguousarray(p), uniform, fade, normal, state.error_db,
+        )  # fmt: skip
         return state
 
     def update(self, rx_dbm: FloatArray, p: FloatArray, receivers: NDArray[np.int64] | None = None) -> None:
@@ -143,6 +150,44 @@ class Measurements:
             np.ascontiguousarray(p), uniform, fade, normal, self.error_db, cols,
         )  # fmt: skip
         self.head = (self.head + 1) % self.window
+
+
+@njit(cache=True)
+def _start_window(
+    power_mw: FloatArray,
+    count: FloatArray,
+    rsrp_dbm: FloatArray,
+    age: NDArray[np.int64],
+    rx_dbm: FloatArray,
+    p: FloatArray,
+    uniform: FloatArray,
+    fade: FloatArray,
+    normal: FloatArray,
+    error_db: float,
+) -> None:
+    """``W`` periods of :func:`_update_columns` for every receiver with the same ``rx_dbm`` and ``p`` and the
+    draws ``uniform``, ``fade``, ``normal`` [W, N, N], in one pass: the samples and ages period by period,
+    the report once, from the last period's error (the earlier reports are all overwritten: the window
+    then holds every period, so a pair heard in any period is heard in the last report's window)."""
+    window = power_mw.shape[0]
+    n = rx_dbm.shape[0]
+    for j in range(n):
+        for i in range(n):
+            heard = 0.0
+            total = 0.0
+            for k in range(window):
+                decoded = uniform[k, j, i] < p[j, i]
+                if decoded:
+                    power_mw[k, j, i] = 10.0 ** (rx_dbm[j, i] / 10.0) * fade[k, j, i]
+                    count[k, j, i] = 1.0
+                else:
+                    power_mw[k, j, i] = 0.0
+                    count[k, j, i] = 0.0
+                heard += count[k, j, i]
+                total += power_mw[k, j, i]
+                age[j, i] = 0 if decoded else age[j, i] + 1
+            if heard > 0.0:
+                rsrp_dbm[j, i] = 10.0 * math.log10(total / heard) + normal[window - 1, j, i] * error_db
 
 
 #: ``np.arange(n)`` by n: every receiver's column

@@ -157,3 +157,24 @@ def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_steps_copies() -
             ro, rr, _, rt, _ = ref.step(act[k])
             assert np.array_equal(o[k], ro) and r[k] == rr and trunc[k] == rt
     vec.close()
+
+
+def test_start_equals_a_window_of_updates() -> None:
+    """``Measurements.start`` (one compiled pass) against ``window`` calls of ``update`` with the same inputs."""
+    from cv2x_marl.env.measurement import Measurements
+
+    env = _v3()
+    env.reset(seed=3)
+    p, _, rx = env.links.evaluate_rx(env.positions_m)
+    n = env.n
+    for seed in range(3):
+        a = Measurements.start(rx, p, 10, 3.0, np.random.default_rng(seed))
+        b = Measurements(
+            10, 3.0, np.random.default_rng(seed), np.zeros((10, n, n)), np.zeros((10, n, n)), 0,
+            np.full((n, n), np.nan), np.zeros((n, n), dtype=np.int64),
+        )  # fmt: skip
+        for _ in range(10):
+            b.update(rx, p)
+        assert np.array_equal(a.rsrp_dbm, b.rsrp_dbm, equal_nan=True) and np.array_equal(a.age, b.age)
+        assert np.array_equal(a.power_mw, b.power_mw) and np.array_equal(a.count, b.count) and a.head == b.head
+        assert a.rng.random() == b.rng.random()
