@@ -178,3 +178,31 @@ def test_start_equals_a_window_of_updates() -> None:
         assert np.array_equal(a.rsrp_dbm, b.rsrp_dbm, equal_nan=True) and np.array_equal(a.age, b.age)
         assert np.array_equal(a.power_mw, b.power_mw) and np.array_equal(a.count, b.count) and a.head == b.head
         assert a.rng.random() == b.rng.random()
+
+
+def test_gymnasium_env_and_vector_env_draw_resets_from_the_start_pool() -> None:
+    """``reset()`` without a seed of SingleMover-v3 (and the vector env's autoresets) start from the pool's
+    seeds; the sequence follows the first seeded reset."""
+    from cv2x_marl.env.seeds import training_pool
+
+    pool = set(training_pool(3))
+    env = gym.make("cv2x/SingleMover-v3", start_pool=3, max_cycles=3, **FAST)
+    env.reset(seed=5)
+    assert env.unwrapped.par.seed_used == 5
+    used = []
+    for _ in range(4):
+        env.reset()
+        used.append(env.unwrapped.par.seed_used)
+    assert set(used) <= pool
+    again = gym.make("cv2x/SingleMover-v3", start_pool=3, max_cycles=3, **FAST)
+    again.reset(seed=5)
+    assert [again.reset() and again.unwrapped.par.seed_used for _ in range(4)] == used
+    vec = gym.make_vec(
+        "cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", start_pool=3, max_cycles=2,
+        autoreset_mode="SameStep", **FAST,
+    )  # fmt: skip
+    vec.reset(seed=0)
+    for _ in range(2):
+        vec.step(np.zeros((2, 2), dtype=np.float32))
+    assert {e.par.seed_used for e in vec.unwrapped.envs} <= pool
+    vec.close()
