@@ -162,7 +162,10 @@ def main() -> None:
             key = f"{name}_reset_ms_{label}"
             rows[key] = min(reset_ms(env_id, pool, count) for _ in range(args.repeats))
             print(f"{env_id} reset ({label}): {rows[key]:.2f} ms", flush=True)
-    for env_id, name in (("cv2x/SingleMover-v3", f"single_mover_v3_k{args.copies}"), ("cv2x/Cooperative-v0", "cooperative_v0")):
+    for env_id, name in (
+        ("cv2x/SingleMover-v3", f"single_mover_v3_k{args.copies}"),
+        ("cv2x/Cooperative-v0", "cooperative_v0"),
+    ):
         best = max(rows[f"{name}_resets"], rows[f"{name}_pool64"])
         rows[f"{name}_target_met_with_resets"] = bool(best >= TARGETS[env_id])
     write_json(Path("benchmarks/results/bench_tasks.json"), rows)

@@ -40,7 +40,9 @@ class MoverLinksStep:
 
     def __init__(self, links: SnapshotLinks, mover: int, positions_m: FloatArray, column: bool) -> None:
         if not links.compiled:
-            raise ValueError("MoverLinksStep needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
+            raise ValueError(
+                "MoverLinksStep needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)"
+            )
         self.links = links
         self.mover = int(mover)
         self.column = column

@@ -406,7 +406,9 @@ class SnapshotLinks:
         if not self.compiled:
             return p, geometry, self.rx_dbm(pos, shadow)
         args = self._kernel_args
-        rx = kernels.pair_rx_dbm(pos, args[0], args[1], self._shadow(pos, shadow), float(self.eirp_dbm), args[3], args[4])
+        rx = kernels.pair_rx_dbm(
+            pos, args[0], args[1], self._shadow(pos, shadow), float(self.eirp_dbm), args[3], args[4]
+        )
         return p, geometry, rx
 
     def evaluate(self, positions_m: FloatArray, shadow_db: FloatArray | None = None) -> tuple[FloatArray, PairGeometry]:
@@ -580,7 +582,7 @@ class MoverRow:
     def success_with_gains(self, candidates_m: FloatArray, gain_rows_db: FloatArray) -> FloatArray:
         """:meth:`success` (compiled) with the own links' gains given: ``gain_rows_db`` [1, N] or [M, N]
         (EIRP minus the shadowing, dBm), e.g. the field's row already read for the step."""
-        return kernels.mover_row_success(candidates_m, *self._args[:4], gain_rows_db, *self._args[5:])
+        return kernels.mover_row_success(candidates_m, *self._args[:4], gain_rows_db, *self._args[5:])  # type: ignore[call-arg]
 
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""

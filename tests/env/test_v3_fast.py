@@ -141,7 +141,7 @@ def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_steps_copies() -
     assert MobilityEnv(movers=[0], shadow_field=True, truth_los="geometry", **FAST).fast_mover is None  # numpy path
     reason = batch_problem(env.par)
     assert reason is not None and "shadowing field" in reason
-    with pytest.raises(ValueError, match="cannot be stepped in a batch: .*shadowing field"):
+    with pytest.raises(ValueError, match=r"cannot be stepped in a batch: .*shadowing field"):
         MoverBatch([env.par])
     vec = gym.make_vec("cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", max_cycles=6, **FAST)
     assert not vec.unwrapped.batched and "shadowing field" in vec.unwrapped.not_batched_because

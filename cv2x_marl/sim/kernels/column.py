@@ -174,7 +174,5 @@ def mover_column(
                     * _DB_TO_NEPER
                 )
             interference += interferer_weight[j, g] * rx_mw
-        p[j] = _link_success(
-            s_dbm, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
-        )
+        p[j] = _link_success(s_dbm, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
     return p, rx
