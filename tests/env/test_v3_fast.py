@@ -135,16 +135,15 @@ def test_update_of_one_receiver_equals_its_column_of_the_full_update() -> None:
     assert a.measure.rng.random() == b.measure.rng.random()  # the same draws consumed
 
 
-def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_steps_copies() -> None:
+def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_is_batched() -> None:
     env = SingleMoverEnvV3(**FAST)
     assert env.fast and env.par.fast_mover == 0
     assert MobilityEnv(movers=[0], shadow_field=True, truth_los="geometry", **FAST).fast_mover is None  # numpy path
-    reason = batch_problem(env.par)
-    assert reason is not None and "shadowing field" in reason
-    with pytest.raises(ValueError, match=r"cannot be stepped in a batch: .*shadowing field"):
-        MoverBatch([env.par])
+    assert batch_problem(env.par) is None
+    reason = batch_problem(MobilityEnv(movers=[0], shadow_field=True, **FAST))
+    assert reason is not None and "observation version 3" in reason
     vec = gym.make_vec("cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", max_cycles=6, **FAST)
-    assert not vec.unwrapped.batched and "shadowing field" in vec.unwrapped.not_batched_because
+    assert vec.unwrapped.batched
     refs = [SingleMoverEnvV3(max_cycles=6, **FAST) for _ in range(2)]
     obs, _ = vec.reset(seed=[11, 12])
     for k, ref in enumerate(refs):
@@ -156,7 +155,50 @@ def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_steps_copies() -
         for k, ref in enumerate(refs):
             ro, rr, _, rt, _ = ref.step(act[k])
             assert np.array_equal(o[k], ro) and r[k] == rr and trunc[k] == rt
+    # the copies see the batch's state: measurements, positions
+    copies = vec.unwrapped._synced()
+    for k, ref in enumerate(refs):
+        par = copies[k].par
+        assert np.array_equal(par.state()[: 6 * par.n], ref.par.state()[: 6 * par.n])
+        assert np.array_equal(par.measure.rsrp_dbm[:, 0], ref.par.measure.rsrp_dbm[:, 0], equal_nan=True)
     vec.close()
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {},
+        {"overrides": [*FAST["overrides"], "road.wrap_distances=true", "link.inband_emission_db=-20"]},
+        {"shadow_field": False, "reward_form": "utility", "max_drift_m": 30.0, "settle_steps": 3},
+    ],
+)
+def test_batched_v3_step_equals_step_mover_bit_for_bit(kw: dict[str, Any]) -> None:
+    """K copies through ``MoverBatch`` (field row, column, measurements, v3 entries compiled) against
+    ``step_mover`` per copy, across autoresets."""
+    kw = {"max_cycles": 12, "max_step_m": 15.0, **FAST, **kw}
+    copies = 3
+    ref = [SingleMoverEnvV3(**kw) for _ in range(copies)]
+    bat = [SingleMoverEnvV3(**kw) for _ in range(copies)]
+    batch = MoverBatch([e.par for e in bat])
+    assert batch.v3 is not None
+    for k in range(copies):
+        ref[k].reset(seed=20 + k)
+        bat[k].reset(seed=20 + k)
+        batch.load(k)
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        act = rng.uniform(-1.5, 1.5, (copies, 2)).astype(np.float32)
+        obs, rew, done, info = batch.step(act)
+        for k in range(copies):
+            o, r, _term, trunc, inf = ref[k].step(act[k])
+            assert np.array_equal(o, obs[k]) and o.dtype == obs.dtype
+            assert r == rew[k] and trunc == done[k]
+            assert np.array_equal([inf[key] for key in INFO_KEYS], info[k])
+            assert np.array_equal(ref[k].par.measure.rsrp_dbm[:, 0], batch.v3.rsrp_dbm[k][:, 0], equal_nan=True)
+            if trunc:
+                ref[k].reset()
+                bat[k].reset()
+                batch.load(k)
 
 
 def test_start_equals_a_window_of_updates() -> None:
