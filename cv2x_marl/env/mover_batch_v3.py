@@ -133,7 +133,8 @@ class V3Stacks:
         """The stacks in :func:`_mover_steps_v3`'s order (after the arguments of ``_mover_steps``)."""
         return (
             self.has_field, self.f_start, self.f_shadow0, self.f_sigma, self.decorrelation_m, self.f_k_lo,
-            self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db, self.shadow_col_db,
+            self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db,
+            self.shadow_col_db,
             self.idx, self.val, self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, self.rx_dbm,
             self.uniform, self.fade, self.normal, self.error_db, self.slot_frac, self.sub_frac, self.horizon,
         )  # fmt: skip
@@ -336,7 +337,8 @@ def _mover_steps_v3(
                 p[k, i, j] = 0.0
         p_col, rx_col = mover_column(
             x, y, pos, i, period_m, los[k], col_gain, col_shadow, eirp_dbm, wb1, range2_m2, idx[k], val[k],
-            noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm, np.ascontiguousarray(target[k, :, i]),
+            noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
+            np.ascontiguousarray(target[k, :, i]),
         )  # fmt: skip
         for j in range(n):
             p[k, j, i] = p_col[j]
