@@ -9,6 +9,9 @@ and region bounds; the eq. 12 utility, PRR and Jain's index; the pair-geometry u
 the version-1 own state and entries), the mover's links (:func:`cv2x_marl.sim.kernels.mover_row_success`'s
 per-link code) and the observation kernel (:func:`cv2x_marl.env.observation._observation_kernel`).
 The results are bit-identical to ``step_mover`` by construction (and tested: ``tests/env/test_vector.py``).
+Observation version 3 (``cv2x/SingleMover-v3``) steps through :func:`cv2x_marl.env.mover_batch_v3._mover_steps_v3`
+instead: the same step plus the shadowing field's row, the mover's column of links and its measurements
+(``tests/env/test_v3_fast.py``).
 
 Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
 :meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
