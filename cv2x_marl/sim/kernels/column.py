@@ -148,6 +148,14 @@ def mover_column(
     n = positions_m.shape[0]
     p = np.zeros(n)
     rx = np.empty(n)
+    at_mover_dbm = np.empty(n)  # snapshot_links' rx_dbm[c, mover] and rx_mw[c, mover], each computed once
+    at_mover_mw = np.zeros(n)
+    for c in range(n):
+        if c == mover:
+            at_mover_dbm[c] = -np.inf
+            continue
+        at_mover_dbm[c] = _kernel_rx_dbm(cx, cy, positions_m, mover, c, period_m, los, gain_col_db, wb1, range2_m2)
+        at_mover_mw[c] = math.exp(at_mover_dbm[c] * _DB_TO_NEPER)
     for j in range(n):
         if j == mover:
             rx[j] = -np.inf
@@ -160,19 +168,13 @@ def mover_column(
             rx[j] = -np.inf
         if not target_col[j]:
             continue
-        s_dbm = _kernel_rx_dbm(cx, cy, positions_m, mover, j, period_m, los, gain_col_db, wb1, range2_m2)
         interference = 0.0
         for g in range(interferer_idx.shape[1]):
             c = interferer_idx[j, g]
             if c < 0:
                 break
-            if c == mover:
-                rx_mw = 0.0
-            else:
-                rx_mw = math.exp(
-                    _kernel_rx_dbm(cx, cy, positions_m, mover, c, period_m, los, gain_col_db, wb1, range2_m2)
-                    * _DB_TO_NEPER
-                )
-            interference += interferer_weight[j, g] * rx_mw
-        p[j] = _link_success(s_dbm, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
+            interference += interferer_weight[j, g] * at_mover_mw[c]
+        p[j] = _link_success(
+            at_mover_dbm[j], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
+        )
     return p, rx
