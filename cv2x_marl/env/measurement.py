@@ -27,14 +27,17 @@ window (``window`` periods with the start's ``rx_mw`` and ``P``); each env step 
 new positions. Randomness: the episode's ``measurement`` stream
 (:func:`cv2x_marl.rng.env_stream`), drawn per period in this order: the decoding uniforms
 ``U [N, N]`` (decoded where ``U < P``), the fading ``Exp(1) [N, N]``, the errors ``N(0, 1) [N, N]``
-(scaled by ``error_db``). All pairs at once (numpy).
+(scaled by ``error_db``), always for all pairs; the reports are updated by a compiled pass over the
+receivers asked for (all, or the mover's column alone in a one-mover step: the same values).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
@@ -90,7 +93,8 @@ class Measurements:
     def start(
         cls, rx_dbm: FloatArray, p: FloatArray, window: int, error_db: float, rng: np.random.Generator
     ) -> Measurements:
-        """The measurements after a window at the start positions.
+        """The measurements after a window at the start positions: ``window`` periods of :meth:`update`
+        with the start's ``rx_dbm`` and ``p`` (the reports of the last one cover them all).
 
         Args:
             rx_dbm: [N(tx), N(rx)] mean received power at the start positions (dBm; -inf: none).
@@ -110,40 +114,125 @@ class Measurements:
             np.full((n, n), np.nan),
             np.zeros((n, n), dtype=np.int64),
         )
-        with np.errstate(over="ignore"):
-            rx_mw = 10.0 ** (np.asarray(rx_dbm) / 10.0)
-        error = np.zeros((n, n))
-        for k in range(window):  # the same draws, in the same order, as ``window`` calls of update()
-            decoded, fade, error = draw_period(rng, p, error_db)
-            state.power_mw[k] = np.where(decoded, rx_mw * fade, 0.0)
-            state.count[k] = decoded
-            state.age = np.where(decoded, 0, state.age + 1)
-        state._report(error)
+        uniform, fade, normal = (np.empty((window, n, n)) for _ in range(3))
+        for k in range(window):  # the stream's order: per period U, then Exp(1), then N(0, 1)
+            rng.random(out=uniform[k])
+            rng.standard_exponential(out=fade[k])
+            rng.standard_normal(out=normal[k])
+        _start_window(
+            state.power_mw, state.count, state.rsrp_dbm, state.age, np.ascontiguousarray(rx_dbm),
+            np.ascontiguousarray(p), uniform, fade, normal, state.error_db,
+        )  # fmt: skip
         return state
 
-    def _report(self, error: FloatArray) -> None:
-        """The reports from the window's samples with this period's errors [N, N] (dB); stale where none."""
-        heard = self.count.sum(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            report = 10.0 * np.log10(self.power_mw.sum(axis=0) / heard) + error
-        self.rsrp_dbm = np.where(heard > 0, report, self.rsrp_dbm)
-
-    def update(self, rx_dbm: FloatArray, p: FloatArray) -> None:
+    def update(self, rx_dbm: FloatArray, p: FloatArray, receivers: NDArray[np.int64] | None = None) -> None:
         """One period at the current positions: each link's packet, decoded or not, and the reports.
+
+        The draws cover every pair (:func:`draw_period`'s order), whatever ``receivers``; the reports of
+        the receivers' columns are updated (compiled, :func:`_update_columns`), bit for bit the same
+        whether one column or all are.
 
         Args:
             rx_dbm: [N(tx), N(rx)] mean received power of this period (dBm).
             p: [N(tx), N(rx)] decoding probability of this period.
+            receivers: [R] the columns (receivers) to update (None: all); the others keep their state
+                (a one-mover step observes only the mover's).
         """
-        decoded, fade, error = draw_period(self.rng, p, self.error_db)
-        with np.errstate(over="ignore"):
-            sample = np.where(decoded, 10.0 ** (np.asarray(rx_dbm) / 10.0) * fade, 0.0)
-        k = self.head
-        self.power_mw[k] = sample
-        self.count[k] = decoded
-        self.head = (k + 1) % self.window
-        self._report(error)
-        self.age = np.where(decoded, 0, self.age + 1)
+        n = p.shape[0]
+        uniform = self.rng.random((n, n))
+        fade = self.rng.standard_exponential((n, n))
+        normal = self.rng.standard_normal((n, n))
+        cols = _ALL.get(n) if receivers is None else receivers
+        if cols is None:
+            cols = _ALL[n] = np.arange(n, dtype=np.int64)
+        _update_columns(
+            self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, np.ascontiguousarray(rx_dbm),
+            np.ascontiguousarray(p), uniform, fade, normal, self.error_db, cols,
+        )  # fmt: skip
+        self.head = (self.head + 1) % self.window
+
+
+@njit(cache=True)
+def _start_window(
+    power_mw: FloatArray,
+    count: FloatArray,
+    rsrp_dbm: FloatArray,
+    age: NDArray[np.int64],
+    rx_dbm: FloatArray,
+    p: FloatArray,
+    uniform: FloatArray,
+    fade: FloatArray,
+    normal: FloatArray,
+    error_db: float,
+) -> None:
+    """``W`` periods of :func:`_update_columns` for every receiver with the same ``rx_dbm`` and ``p`` and the
+    draws ``uniform``, ``fade``, ``normal`` [W, N, N], in one pass: the samples and ages period by period,
+    the report once, from the last period's error (the earlier reports are all overwritten: the window
+    then holds every period, so a pair heard in any period is heard in the last report's window)."""
+    window = power_mw.shape[0]
+    n = rx_dbm.shape[0]
+    for j in range(n):
+        for i in range(n):
+            heard = 0.0
+            total = 0.0
+            for k in range(window):
+                decoded = uniform[k, j, i] < p[j, i]
+                if decoded:
+                    power_mw[k, j, i] = 10.0 ** (rx_dbm[j, i] / 10.0) * fade[k, j, i]
+                    count[k, j, i] = 1.0
+                else:
+                    power_mw[k, j, i] = 0.0
+                    count[k, j, i] = 0.0
+                heard += count[k, j, i]
+                total += power_mw[k, j, i]
+                age[j, i] = 0 if decoded else age[j, i] + 1
+            if heard > 0.0:
+                rsrp_dbm[j, i] = 10.0 * math.log10(total / heard) + normal[window - 1, j, i] * error_db
+
+
+#: ``np.arange(n)`` by n: every receiver's column
+_ALL: dict[int, NDArray[np.int64]] = {}
+
+
+@njit(cache=True)
+def _update_columns(
+    power_mw: FloatArray,
+    count: FloatArray,
+    head: int,
+    rsrp_dbm: FloatArray,
+    age: NDArray[np.int64],
+    rx_dbm: FloatArray,
+    p: FloatArray,
+    uniform: FloatArray,
+    fade: FloatArray,
+    normal: FloatArray,
+    error_db: float,
+    receivers: NDArray[np.int64],
+) -> None:
+    """One period of the measurements of the receivers' columns, in place (module docstring): decoded
+    where ``uniform < p``, the sample ``10^(rx_dbm / 10) * fade`` into ring slot ``head``, the report
+    ``10 log10(sum of the window's samples / their count) + error_db * normal`` where any was decoded
+    (the sums in slot order), the age. Arrays [W, N, N] / [N, N] as :class:`Measurements`'."""
+    window = power_mw.shape[0]
+    n = rx_dbm.shape[0]
+    for r in range(receivers.shape[0]):
+        i = receivers[r]
+        for j in range(n):
+            decoded = uniform[j, i] < p[j, i]
+            if decoded:
+                power_mw[head, j, i] = 10.0 ** (rx_dbm[j, i] / 10.0) * fade[j, i]
+                count[head, j, i] = 1.0
+            else:
+                power_mw[head, j, i] = 0.0
+                count[head, j, i] = 0.0
+            heard = 0.0
+            total = 0.0
+            for k in range(window):
+                heard += count[k, j, i]
+                total += power_mw[k, j, i]
+            if heard > 0.0:
+                rsrp_dbm[j, i] = 10.0 * math.log10(total / heard) + normal[j, i] * error_db
+            age[j, i] = 0 if decoded else age[j, i] + 1
 
 
 def scaled_rsrp(rsrp_dbm: FloatArray) -> FloatArray:

@@ -21,6 +21,7 @@ from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.env import starts
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env.measurement import Measurements, scaled_rsrp
+from cv2x_marl.env.mover_links import MoverLinksStep
 from cv2x_marl.env.observation import (
     ObservationLayout,
     build_observations,
@@ -311,8 +312,7 @@ class MobilityEnv(ParallelEnv):
         if self.layout.version == 3:
             o = self.options
             rng = env_stream(episode_seed, "measurement")
-            self.measure = Measurements.start(self.links.rx_dbm(self.positions_m), self.link_p, o.sensing_window,
-                                              o.rsrp_error_db, rng)  # fmt: skip
+            self.measure = Measurements.start(self._rx_dbm, self.link_p, o.sensing_window, o.rsrp_error_db, rng)
         if keep and cached is None:
             starts.store_start(self, episode_seed)
         obs = self._observations()
@@ -351,7 +351,7 @@ class MobilityEnv(ParallelEnv):
         self.link_p, self.target = self._link_success()
         self._summarise()
         if self.layout.version == 3:  # one more period of sensing at the new positions
-            self.measure.update(self.links.rx_dbm(self.positions_m), self.link_p)
+            self.measure.update(self._rx_dbm, self.link_p)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
         if self.layout.version >= 1:
             step_core.own_state_updates(
@@ -377,11 +377,12 @@ class MobilityEnv(ParallelEnv):
     @property
     def fast_mover(self) -> int | None:
         """The vehicle whose step :meth:`step_mover` computes alone, or None when it does not apply
-        (it needs snapshot mode, one mover and the individual reward; not yet with observation version 3 or
-        the shadowing field)."""
+        (it needs snapshot mode, one mover and the individual reward; with observation version 3 or the
+        shadowing field also the compiled link kernels: WINNER+ B1, ``truth_los`` snapshot or always)."""
         movers = np.flatnonzero(self.mover_mask)
         ok = self.mode == "snapshot" and movers.size == 1 and self.reward_kind == "individual"
-        ok = ok and self.layout.version != 3 and not self.options.shadow_field
+        if self.layout.version == 3 or self.options.shadow_field:
+            ok = ok and self.config.channel.pathloss == "winner_b1" and self.truth_los != "geometry"
         return int(movers[0]) if ok else None
 
     def step_mover(self, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
@@ -390,8 +391,11 @@ class MobilityEnv(ParallelEnv):
         What :meth:`step` returns for that vehicle, bit for bit, computed for it alone with the same
         step functions (:mod:`cv2x_marl.env.step`; the batched copies of :mod:`cv2x_marl.env.mover_batch`
         call them too): its links through :meth:`SnapshotLinks.mover_row` (the interference on them
-        does not change while the others stand still), its row of the pair geometry and its observation. The other
-        vehicles' rewards and observations are not computed, so after this call use only
+        does not change while the others stand still), its row of the pair geometry and its observation. With
+        the shadowing field or observation version 3 its row and column (what it hears: P and received
+        power, for its measurements) read the field once (:class:`~cv2x_marl.env.mover_links.MoverLinksStep`);
+        the measurement stream draws every pair's period as :meth:`step` does. The other vehicles' rewards,
+        observations and measurements are not kept current, so after this call use only
         ``step_mover`` until the next :meth:`reset` (``SingleMover`` envs do).
         """
         i = self.fast_mover
@@ -417,9 +421,19 @@ class MobilityEnv(ParallelEnv):
         )  # fmt: skip
         self.t += 1
         self.tracks.append(pos.copy())
+        v3 = self.layout.version == 3
         if self._mover_row is None or self._mover_row.mover != i:
-            self._mover_row = self.links.mover_row(i, pos)
-        self.link_p[i] = self._mover_row.success(pos[i : i + 1])[0]
+            self._mover_rows = np.array([i], dtype=np.int64)
+            if v3 or self.links.field is not None:  # its row and (v3) its column, the field read once
+                self._mover_row = MoverLinksStep(self.links, i, pos, column=v3)
+            else:
+                self._mover_row = self.links.mover_row(i, pos)
+        if isinstance(self._mover_row, MoverLinksStep):
+            self._mover_row.step(pos, self.link_p, self._rx_dbm if v3 else None)
+        else:
+            self.link_p[i] = self._mover_row.success(pos[i : i + 1])[0]
+        if v3:  # the period's draws for every pair, as step(); the mover's column of reports
+            self.measure.update(self._rx_dbm, self.link_p, self._mover_rows)
         u, self.prr[i], self.jain[i], count = step_core.utility_of(
             self.link_p[i], self.target[i], self.p_min, self.normalise_reward
         )
@@ -435,8 +449,11 @@ class MobilityEnv(ParallelEnv):
                 self._best_m[i] = pos[i]
             self._maybe_replan()
         done = self.t >= self.max_cycles
-        obs = self._build(np.array([i], dtype=np.int64))
-        if self.layout.version >= 1:
+        rows = self._mover_rows
+        obs = self._build(rows)
+        if v3:
+            self._fill_v3(obs, rows)
+        elif self.layout.version >= 1:
             step_core.own_v1_entries(
                 obs[0], self.layout.own_v1_offset, self.layout.obs_clip, self.layout.scale_m, self._reach_m(),
                 self._u_now[i], self._u_prev[i], self._u_start[i], self._u_best[i], self._best_m[i, 0],
@@ -507,6 +524,9 @@ class MobilityEnv(ParallelEnv):
         return mobility.positions_m(self.sim.road, self.sim.state) + self.offsets_m
 
     def _link_success(self) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        if self.mode == "snapshot" and self.layout.version == 3:  # the field read once for P and the powers
+            p, self._geometry, self._rx_dbm = self.links.evaluate_rx(self.positions_m)
+            return p, self.links.target
         if self.mode == "snapshot":
             p, self._geometry = self.links.evaluate(self.positions_m)  # geometry shared with the observations
             return p, self.links.target

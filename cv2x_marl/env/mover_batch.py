@@ -9,6 +9,9 @@ and region bounds; the eq. 12 utility, PRR and Jain's index; the pair-geometry u
 the version-1 own state and entries), the mover's links (:func:`cv2x_marl.sim.kernels.mover_row_success`'s
 per-link code) and the observation kernel (:func:`cv2x_marl.env.observation._observation_kernel`).
 The results are bit-identical to ``step_mover`` by construction (and tested: ``tests/env/test_vector.py``).
+Observation version 3 (``cv2x/SingleMover-v3``) steps through :func:`cv2x_marl.env.mover_batch_v3._mover_steps_v3`
+instead: the same step plus the shadowing field's row, the mover's column of links and its measurements
+(``tests/env/test_v3_fast.py``).
 
 Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
 :meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
@@ -29,6 +32,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step
+from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3
 from cv2x_marl.env.observation import _observation_kernel
 from cv2x_marl.sim import kernels
 from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
@@ -47,6 +51,11 @@ def batch_problem(env: MobilityEnv) -> str | None:
     """Why ``env`` cannot be stepped by a :class:`MoverBatch` (None when it can)."""
     if env.fast_mover is None:
         return "it needs snapshot mode, exactly one mover and reward='individual'"
+    if env.options.shadow_field and env.layout.version != 3:
+        return (
+            "the batched step follows the shadowing field only with observation version 3 "
+            "(the copies step one by one through MobilityEnv.step_mover)"
+        )
     if env.render_mode is not None:
         return "rendering needs the env objects' own state (render_mode is set)"
     if env.replan_every is not None:
@@ -236,6 +245,8 @@ class MoverBatch:
         #: copies that hold an episode (loaded since construction)
         self.loaded = np.zeros(self.k, dtype=bool)
         self._const: tuple[Any, ...] | None = None  # the kernel's constants, from the first loaded copy
+        #: observation version 3: the field and the measurements of every copy (:mod:`.mover_batch_v3`)
+        self.v3 = V3Stacks(self.envs) if first.layout.version == 3 else None
 
     def _constants(self, env: MobilityEnv) -> tuple[Any, ...]:
         """The kernel arguments every copy shares (links, options, layout, model), from a reset env."""
@@ -252,7 +263,7 @@ class MoverBatch:
             env.action_mode == "plan_residual", bool(env.normalise_reward),
             env.reward_form == "improvement", float(env.p_min), int(layout.version),
             layout.n_neighbours, layout.scale_m, layout.region_m, layout.interferer_range_m, layout.obs_clip,
-            layout.size, layout.per_neighbour_extra, layout.own_v1_offset,
+            layout.size, layout.model_extra, layout.own_v1_offset,
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.alpha, dtype=np.float64),
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.beta, dtype=np.float64),
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.gamma, dtype=np.float64),
@@ -297,6 +308,8 @@ class MoverBatch:
             s[U_NOW], s[U_PREV], s[U_START], s[U_BEST] = env._u_now[i], env._u_prev[i], env._u_start[i], env._u_best[i]
             self.plan_m[k] = env.plan_m[i]
             self.best_m[k] = env._best_m[i]
+        if self.v3 is not None:
+            self.v3.load(k, env, i)
         self.loaded[k] = True
 
     def step(
@@ -329,6 +342,15 @@ class MoverBatch:
         dones = np.zeros(self.k, dtype=bool)
         info = np.zeros((self.k, 8))
         (period, wb1, range2, model, per_sinr, per, thr, sens, *opts) = self._const
+        if self.v3 is not None:
+            self.v3.draw_periods(self.envs, mask)
+            _mover_steps_v3(  # type: ignore[call-arg]
+                mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
+                self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,
+                self.level_db, self.scalars, period, wb1, range2, model, per_sinr, per, thr, sens, *opts,
+                *self.v3.kernel_args(), obs, rewards, dones, info,
+            )  # fmt: skip
+            return obs, rewards, dones, info
         _mover_steps(  # type: ignore[call-arg]  # numba's Dispatcher hides the signature
             mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
             self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,
@@ -352,6 +374,8 @@ class MoverBatch:
         if env.layout.version >= 1:
             env._u_now[i], env._u_prev[i], env._u_best[i] = s[U_NOW], s[U_PREV], s[U_BEST]
             env._best_m[i] = self.best_m[k]
+        if self.v3 is not None:
+            self.v3.sync(k, env)
         if env.t >= env.max_cycles:
             env.agents = []
             env._live = set()
@@ -363,6 +387,7 @@ EPISODE_METHODS = ("reset", "step", "step_mover")
 SHARED_OPTIONS = (
     "config", "truth_los", "max_cycles", "max_step_m", "settle_steps", "max_drift_m", "roi", "action_mode",
     "normalise_reward", "reward_form", "p_min", "layout", "model_name", "mover_mask", "replan_every", "box_m",
+    "options",
 )  # fmt: skip
 #: env attributes not to be set on a batched copy: the shared options and what they load
 BATCH_ATTRIBUTES = (*SHARED_OPTIONS, "model", "links")

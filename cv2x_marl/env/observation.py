@@ -483,15 +483,34 @@ def fill_own_v3(
         time_left: steps left / horizon.
         reach_m: moving steps left x ``max_step_m`` (m).
     """
-    o = layout.own_v1_offset
-    vals = np.column_stack(
-        (
-            u_now,
-            10.0 * (u_now - u_prev),
-            drift_m[:, 0] / layout.scale_m,
-            drift_m[:, 1] / layout.scale_m,
-            np.full(len(u_now), time_left),
-            np.full(len(u_now), reach_m / layout.scale_m),
+    _own_v3_kernel(
+        obs, layout.own_v1_offset, layout.obs_clip, layout.scale_m, np.ascontiguousarray(u_now, dtype=np.float64),
+        np.ascontiguousarray(u_prev, dtype=np.float64), np.ascontiguousarray(drift_m, dtype=np.float64),
+        float(time_left), float(reach_m),
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _own_v3_kernel(
+    obs: NDArray[np.float32],
+    offset: int,
+    obs_clip: float,
+    scale_m: float,
+    u_now: FloatArray,
+    u_prev: FloatArray,
+    drift_m: FloatArray,
+    time_left: float,
+    reach_m: float,
+) -> None:
+    """:func:`fill_own_v3`'s entries, computed in float64, clipped, stored as float32."""
+    for r in range(obs.shape[0]):
+        vals = (
+            u_now[r],
+            10.0 * (u_now[r] - u_prev[r]),
+            drift_m[r, 0] / scale_m,
+            drift_m[r, 1] / scale_m,
+            time_left,
+            reach_m / scale_m,
         )
-    )
-    obs[:, o : o + OWN_V3] = np.clip(vals, -layout.obs_clip, layout.obs_clip)
+        for f in range(OWN_V3):
+            obs[r, offset + f] = min(max(vals[f], -obs_clip), obs_clip)

@@ -45,12 +45,17 @@ class SingleMoverEnv(gym.Env):
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
             raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
         super().reset(seed=None if seed is None else int(seed))
-        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
         limit = (
             self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
         )
         self.par.horizon = self.par.max_cycles if limit is None else min(self.par.max_cycles, int(limit))
-        obs, infos = self.par.reset(seed=episode_seed)
+        if seed is None and self.par.start_pool:  # a start from the pool, drawn by the parallel env's generator
+            if self.par._np_random is None:  # seeded from this env's generator (itself from OS entropy)
+                self.par._np_random = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
+            obs, infos = self.par.reset()
+        else:
+            episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
+            obs, infos = self.par.reset(seed=episode_seed)
         return obs[AGENT], infos[AGENT]
 
     def step(self, action: Any) -> tuple[NDArray, float, bool, bool, dict]:

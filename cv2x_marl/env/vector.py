@@ -251,7 +251,7 @@ class SingleMoverVectorEnvV2(SingleMoverVectorEnv):
 
 
 class SingleMoverVectorEnvV3(SingleMoverVectorEnv):
-    """K copies of ``cv2x/SingleMover-v3`` (see :class:`SingleMoverVectorEnv`; stepped one by one until the
-    single-mover fast path reads the shadowing field and refreshes the measurements)."""
+    """K copies of ``cv2x/SingleMover-v3`` (see :class:`SingleMoverVectorEnv`): batched, the field, the mover's
+    measurements and its v3 entries in the compiled step (:mod:`cv2x_marl.env.mover_batch_v3`)."""
 
     single_env = SingleMoverEnvV3

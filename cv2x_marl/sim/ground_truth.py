@@ -366,30 +366,57 @@ class SnapshotLinks:
         """:func:`pair_geometry` of ``positions_m`` (folded on the torus when ``road.wrap_distances``)."""
         return pair_geometry(positions_m, self._wrap_road)
 
-    def rx_dbm(self, positions_m: FloatArray) -> FloatArray:
+    def rx_dbm(self, positions_m: FloatArray, shadow_db: FloatArray | None = None) -> FloatArray:
         """[N(tx), N(rx)] mean received power (dBm), numpy reference: EIRP - path loss - shadowing;
         -inf on the diagonal and beyond ``link.max_range_m``.
 
         Args:
             positions_m: [N, 2] vehicle positions (m).
+            shadow_db: [N, N] the field's shadowing at ``positions_m`` when already computed (None: computed here).
         """
         los = self.los
         if self.truth_los == "geometry" and self.road.kind == "grid":
             hc, vc = self.road.corridors(positions_m)
             los = Road.corridor_los((hc[:, None], vc[:, None]), (hc[None, :], vc[None, :]))
         pos = np.asarray(positions_m, dtype=np.float64)
-        shadow = self.shadow_db if self.field is None else self.field.shadow_db(pos, compiled=self.compiled)
+        shadow = self._shadow(pos, shadow_db)
         dbm = mean_rx_dbm(self.config, self.road, pos[:, None, :], pos[None, :, :], los, shadow)
         dbm[np.diag_indices(self.n)] = -np.inf
         if self._range2 is not None:
             dbm = np.where(self.geometry(pos).dist2_m2 <= self._range2, dbm, -np.inf)
         return dbm
 
-    def evaluate(self, positions_m: FloatArray) -> tuple[FloatArray, PairGeometry]:
+    def _shadow(self, pos: FloatArray, shadow_db: FloatArray | None) -> FloatArray:
+        """[N, N] the shadowing at ``pos``: the snapshot's, or the field's (``shadow_db`` when given)."""
+        if self.field is None:
+            return self.shadow_db
+        return self.field.shadow_db(pos, compiled=self.compiled) if shadow_db is None else shadow_db
+
+    def evaluate_rx(self, positions_m: FloatArray) -> tuple[FloatArray, PairGeometry, FloatArray]:
+        """:meth:`evaluate` and :meth:`rx_dbm` together, the shadowing field read once: ``(P, geometry,
+        rx_dbm)``, each equal bit for bit to the separate calls (compiled: :func:`cv2x_marl.sim.kernels.pair_rx_dbm`,
+        the numpy reference's arithmetic; tested).
+
+        Args:
+            positions_m: [N, 2] vehicle positions (m).
+        """
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
+        shadow = None if self.field is None else self.field.shadow_db(pos, compiled=self.compiled)
+        p, geometry = self.evaluate(pos, shadow)
+        if not self.compiled:
+            return p, geometry, self.rx_dbm(pos, shadow)
+        args = self._kernel_args
+        rx = kernels.pair_rx_dbm(
+            pos, args[0], args[1], self._shadow(pos, shadow), float(self.eirp_dbm), args[3], args[4]
+        )
+        return p, geometry, rx
+
+    def evaluate(self, positions_m: FloatArray, shadow_db: FloatArray | None = None) -> tuple[FloatArray, PairGeometry]:
         """Expected success of every link and the pair geometry it used.
 
         Args:
             positions_m: [N, 2] vehicle positions (m).
+            shadow_db: [N, N] the field's shadowing at ``positions_m`` when already computed (None: computed here).
 
         Returns:
             ``P[tx, rx]`` [N, N] (0 where rx is not a target of tx) and the :class:`PairGeometry`.
@@ -400,10 +427,10 @@ class SnapshotLinks:
         if self.compiled:
             args = self._kernel_args
             if self.field is not None:  # the gains at these positions: EIRP - the field's shadowing
-                args = (*args[:2], np.ascontiguousarray(self.eirp_dbm - self.field.shadow_db(pos)), *args[3:])
+                args = (*args[:2], np.ascontiguousarray(self.eirp_dbm - self._shadow(pos, shadow_db)), *args[3:])
             disp, dist2, p = kernels.snapshot_links(pos, *args)
             return p, PairGeometry(disp, dist2)
-        s_dbm = self.rx_dbm(pos)
+        s_dbm = self.rx_dbm(pos, shadow_db)
         interference_mw = self.interference_weight @ 10.0 ** (s_dbm / 10.0)  # [tx, rx]
         sinr_db = s_dbm - 10.0 * np.log10(interference_mw + self.noise_mw)
         if self.config.link.model == "per_table":
@@ -551,6 +578,11 @@ class MoverRow:
         """The arguments of the row kernels after ``candidates_m``, with the gains of :meth:`_gain_rows`."""
         a = self._args
         return (*a[:4], self._gain_rows(cand), *a[5:])
+
+    def success_with_gains(self, candidates_m: FloatArray, gain_rows_db: FloatArray) -> FloatArray:
+        """:meth:`success` (compiled) with the own links' gains given: ``gain_rows_db`` [1, N] or [M, N]
+        (EIRP minus the shadowing, dBm), e.g. the field's row already read for the step."""
+        return kernels.mover_row_success(candidates_m, *self._args[:4], gain_rows_db, *self._args[5:])  # type: ignore[call-arg]
 
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""

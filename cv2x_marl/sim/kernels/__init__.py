@@ -17,9 +17,11 @@ Modules: :mod:`.pathloss` (WINNER+ B1), :mod:`.per` (PER curves and the threshol
 (pairs within range, pair geometry, link indexing), :mod:`.shadowing` (correlated shadowing, received
 powers), :mod:`.snapshot` (every link of a snapshot, one mover's row, eq. 12 summaries), :mod:`.period`
 (one period of the subframe loop), :mod:`.field` (the shadowing field that follows the vehicles),
-:mod:`.team` (the team objective when one vehicle moves). This package re-exports their public names.
+:mod:`.team` (the team objective when one vehicle moves), :mod:`.column` (received power in the numpy
+reference's arithmetic, one mover's column of the links). This package re-exports their public names.
 """
 
+from cv2x_marl.sim.kernels.column import mover_column, pair_rx_dbm
 from cv2x_marl.sim.kernels.field import field_row_db, field_row_lattice_db, field_shadow_db, pair_field_db
 from cv2x_marl.sim.kernels.pairs import (
     active_links,
@@ -92,11 +94,13 @@ __all__ = [
     "link_summaries",
     "links_by_transmitter",
     "moved_signal_dbm",
+    "mover_column",
     "mover_interference",
     "mover_row_success",
     "mover_row_utility",
     "pair_field_db",
     "pair_geometry",
+    "pair_rx_dbm",
     "pairs_within_range",
     "per_success",
     "period_chunk",

@@ -1,0 +1,398 @@
+"""The batched one-mover step for observation version 3 (``cv2x/SingleMover-v3``): field and measurements.
+
+:class:`~cv2x_marl.env.mover_batch.MoverBatch` steps K one-mover copies in one compiled call. With
+observation version 3 a step also reads the shadowing field where the mover now stands (its row and
+column), takes one period of measurements (the draws of every pair from each copy's ``measurement``
+stream, drawn in Python in :func:`draw_periods`; the mover's column of reports updated) and builds the
+measured and own v3 entries. :class:`V3Stacks` holds that per-copy state; :func:`_mover_steps_v3` is
+``MobilityEnv.step_mover`` for K copies: the same compiled functions in the same order (the field's
+:func:`~cv2x_marl.sim.kernels.field.pair_field_db`, :func:`~cv2x_marl.sim.kernels.mover_column`, the
+measurement update :func:`~cv2x_marl.env.measurement._update_columns`, the observation kernels), so
+bit-identical to it (tested: ``tests/env/test_v3_fast.py``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from cv2x_marl.env import step
+from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
+from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
+from cv2x_marl.sim.kernels import moved_signal_dbm, mover_column, success_at_level
+from cv2x_marl.sim.kernels.field import pair_field_db
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+FloatArray = NDArray[np.float64]
+
+
+class V3Stacks:
+    """Per-copy state of the v3 step for K copies of N vehicles (``W`` the sensing window, ``F`` the
+    field's waves, ``G`` the interferer table's width)."""
+
+    def __init__(self, envs: list[MobilityEnv]) -> None:
+        first = envs[0]
+        k, n = len(envs), first.n
+        self.k, self.n = k, n
+        self.has_field = bool(first.options.shadow_field)
+        self.window = int(first.options.sensing_window)
+        self.error_db = float(first.options.rsrp_error_db)
+        self.power_mw = np.zeros((k, self.window, n, n))
+        self.count = np.zeros((k, self.window, n, n))
+        self.head = np.zeros(k, dtype=np.int64)
+        self.rsrp_dbm = np.full((k, n, n), np.nan)
+        self.age = np.zeros((k, n, n), dtype=np.int64)
+        self.rx_dbm = np.zeros((k, n, n))
+        self.uniform = np.zeros((k, n, n))
+        self.fade = np.zeros((k, n, n))
+        self.normal = np.zeros((k, n, n))
+        self.los = np.zeros((k, n, n), dtype=bool)
+        self.gain_col_db = np.zeros((k, n))
+        self.shadow_col_db = np.zeros((k, n))
+        self.idx = np.full((k, n, 1), -1, dtype=np.int64)
+        self.val = np.zeros((k, n, 1))
+        self.slot_frac = np.zeros((k, n))
+        self.sub_frac = np.zeros((k, n))
+        self.horizon = np.ones(k, dtype=np.int64)
+        w = 1
+        self.f_start = np.zeros((k, n, 2))
+        self.f_shadow0 = np.zeros((k, n, n))
+        self.f_sigma = np.zeros((k, n, n))
+        self.f_k_lo = np.zeros((k, n, n, w, 2))
+        self.f_k_hi = np.zeros((k, n, n, w, 2))
+        self.f_phase = np.zeros((k, n, n, w))
+        self.f_g0 = np.zeros((k, n, n))
+        self.decorrelation_m = 1.0
+        self.eirp_dbm = 0.0
+        self.noise_mw = 0.0
+
+    def load(self, k: int, env: MobilityEnv, mover: int) -> None:
+        """Copy env copy ``k``'s v3 state (just after its reset) into the stacks."""
+        m = env.measure
+        self.power_mw[k] = m.power_mw
+        self.count[k] = m.count
+        self.head[k] = m.head
+        self.rsrp_dbm[k] = m.rsrp_dbm
+        self.age[k] = m.age
+        self.rx_dbm[k] = env._rx_dbm
+        links = env.links
+        args = links._kernel_args
+        self.eirp_dbm = float(links.eirp_dbm)
+        self.noise_mw = float(links.noise_mw)
+        self.los[k] = args[1]
+        idx, val = args[5], args[6]
+        if idx.shape[1] > self.idx.shape[2]:
+            grown_i = np.full((self.k, self.n, idx.shape[1]), -1, dtype=np.int64)
+            grown_v = np.zeros((self.k, self.n, idx.shape[1]))
+            grown_i[:, :, : self.idx.shape[2]] = self.idx
+            grown_v[:, :, : self.val.shape[2]] = self.val
+            self.idx, self.val = grown_i, grown_v
+        self.idx[k] = -1
+        self.val[k] = 0.0
+        self.idx[k, :, : idx.shape[1]] = idx
+        self.val[k, :, : val.shape[1]] = val
+        self.gain_col_db[k] = args[2][:, mover]
+        self.shadow_col_db[k] = links.shadow_db[:, mover]
+        cfg = env.config
+        slot, sub = np.divmod(env.resource, cfg.sps.n_subchannels)
+        self.slot_frac[k] = slot / cfg.traffic.rri_ms
+        self.sub_frac[k] = sub / cfg.sps.n_subchannels
+        self.horizon[k] = env.horizon
+        field = links.field
+        if self.has_field:
+            assert field is not None
+            if self.f_phase.shape[3] != field.phase.shape[-1]:
+                w = field.phase.shape[-1]
+                self.f_k_lo = np.zeros((self.k, self.n, self.n, w, 2))
+                self.f_k_hi = np.zeros((self.k, self.n, self.n, w, 2))
+                self.f_phase = np.zeros((self.k, self.n, self.n, w))
+            self.f_start[k] = field.start_m
+            self.f_shadow0[k] = field.shadow0_db
+            self.f_sigma[k] = field.sigma_db
+            self.f_k_lo[k] = field.k_lo
+            self.f_k_hi[k] = field.k_hi
+            self.f_phase[k] = field.phase
+            self.f_g0[k] = field.g0
+            self.decorrelation_m = float(field.decorrelation_m)
+
+    def draw_periods(self, envs: list[MobilityEnv], active: NDArray[np.bool_]) -> None:
+        """One period's draws of every pair for each active copy, from its ``measurement`` stream, in the
+        order of :meth:`~cv2x_marl.env.measurement.Measurements.update`."""
+        for k in np.flatnonzero(active):
+            rng = envs[k].measure.rng
+            rng.random(out=self.uniform[k])
+            rng.standard_exponential(out=self.fade[k])
+            rng.standard_normal(out=self.normal[k])
+
+    def kernel_args(self) -> tuple[Any, ...]:
+        """The stacks in :func:`_mover_steps_v3`'s order (after the arguments of ``_mover_steps``)."""
+        return (
+            self.has_field, self.f_start, self.f_shadow0, self.f_sigma, self.decorrelation_m, self.f_k_lo,
+            self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db,
+            self.shadow_col_db,
+            self.idx, self.val, self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, self.rx_dbm,
+            self.uniform, self.fade, self.normal, self.error_db, self.slot_frac, self.sub_frac, self.horizon,
+        )  # fmt: skip
+
+    def sync(self, k: int, env: MobilityEnv) -> None:
+        """Write copy ``k``'s measurements back into its env object."""
+        m = env.measure
+        m.power_mw = self.power_mw[k].copy()
+        m.count = self.count[k].copy()
+        m.head = int(self.head[k])
+        m.rsrp_dbm = self.rsrp_dbm[k].copy()
+        m.age = self.age[k].copy()
+        env._rx_dbm = self.rx_dbm[k].copy()
+
+
+@njit(cache=True)
+def field_row(
+    cx: float,
+    cy: float,
+    positions_m: FloatArray,
+    mover: int,
+    start_m: FloatArray,
+    shadow0_db: FloatArray,
+    sigma_db: FloatArray,
+    decorrelation_m: float,
+    k_lo: FloatArray,
+    k_hi: FloatArray,
+    phase: FloatArray,
+    g0: FloatArray,
+    out: FloatArray,
+) -> None:
+    """Into ``out`` [N]: the field's shadowing of ``mover``'s links with it at ``(cx, cy)`` (0 at itself):
+    the arithmetic of :func:`cv2x_marl.sim.kernels.field.field_row_db` for one candidate."""
+    n = positions_m.shape[0]
+    mx = cx - start_m[mover, 0]
+    my = cy - start_m[mover, 1]
+    for j in range(n):
+        if j == mover:
+            out[j] = 0.0
+            continue
+        jx = positions_m[j, 0] - start_m[j, 0]
+        jy = positions_m[j, 1] - start_m[j, 1]
+        a = min(mover, j)
+        b = max(mover, j)
+        if mover < j:
+            out[j] = pair_field_db(
+                mx, my, jx, jy, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
+                phase[a, b], g0[a, b],
+            )  # fmt: skip
+        else:
+            out[j] = pair_field_db(
+                jx, jy, mx, my, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
+                phase[a, b], g0[a, b],
+            )  # fmt: skip
+
+
+@njit(cache=True)
+def _mover_steps_v3(
+    active: NDArray[np.bool_],
+    actions: FloatArray,
+    mover: NDArray[np.int64],
+    t: NDArray[np.int64],
+    positions_m: FloatArray,
+    start_m: FloatArray,
+    plan_m: FloatArray,
+    best_m: FloatArray,
+    disp_m: FloatArray,
+    dist2_m2: FloatArray,
+    co_table: NDArray[np.int64],
+    target: NDArray[np.bool_],
+    p: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    level_db: FloatArray,
+    scalars: FloatArray,
+    period_m: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    link_model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+    max_step_m: float,
+    max_cycles: int,
+    settle_steps: int,
+    max_drift_m: float,
+    roi: bool,
+    box_m: FloatArray,
+    residual: bool,
+    normalise: bool,
+    improvement: bool,
+    p_min: float,
+    version: int,
+    k_neighbours: int,
+    scale_m: float,
+    region_m: float,
+    interferer_range_m: float,
+    obs_clip: float,
+    size: int,
+    extra: int,
+    own_v1_offset: int,
+    alpha: FloatArray,
+    beta: FloatArray,
+    gamma: FloatArray,
+    logistic: bool,
+    model_p_min: float,
+    has_field: bool,
+    f_start: FloatArray,
+    f_shadow0: FloatArray,
+    f_sigma: FloatArray,
+    decorrelation_m: float,
+    f_k_lo: FloatArray,
+    f_k_hi: FloatArray,
+    f_phase: FloatArray,
+    f_g0: FloatArray,
+    eirp_dbm: float,
+    noise_mw: float,
+    los: NDArray[np.bool_],
+    gain_col_db: FloatArray,
+    shadow_col_db: FloatArray,
+    idx: NDArray[np.int64],
+    val: FloatArray,
+    power_mw: FloatArray,
+    count: FloatArray,
+    head: NDArray[np.int64],
+    rsrp_dbm: FloatArray,
+    age: NDArray[np.int64],
+    rx_dbm: FloatArray,
+    uniform: FloatArray,
+    fade: FloatArray,
+    normal: FloatArray,
+    error_db: float,
+    slot_frac: FloatArray,
+    sub_frac: FloatArray,
+    horizon: NDArray[np.int64],
+    obs_out: NDArray[np.float32],
+    reward_out: FloatArray,
+    done_out: NDArray[np.bool_],
+    info_out: FloatArray,
+) -> None:
+    """Step every ``active`` copy k of observation version 3: ``MobilityEnv.step_mover(actions[k])``, in place.
+
+    The arguments up to ``model_p_min`` as :func:`cv2x_marl.env.mover_batch._mover_steps`; then
+    :meth:`V3Stacks.kernel_args` (field arrays [K, ...] of :class:`~cv2x_marl.sim.shadow_field.ShadowField`,
+    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], this period's draws
+    [K, N, N], the neighbours' resource fractions [K, N], the horizon [K]); then the outputs.
+    """
+    n_copies = actions.shape[0]
+    n = positions_m.shape[1]
+    window = power_mw.shape[1]
+    rows = np.zeros(1, dtype=np.int64)
+    drift = np.empty((n, 2))
+    shadow = np.empty(n)
+    gain = np.empty(n)
+    rsrp_scaled = np.zeros((n, n))
+    age_scaled = np.zeros((n, n))
+    u_now = np.empty(1)
+    u_prev = np.empty(1)
+    drift_one = np.empty((1, 2))
+    v0_size = k_neighbours * FEATURES + OWN
+    for k in range(n_copies):
+        if not active[k]:
+            continue
+        i = mover[k]
+        pos = positions_m[k]
+        x_old = pos[i, 0]
+        y_old = pos[i, 1]
+        clipped = step.is_clipped(actions[k, 0], actions[k, 1])
+        x, y = step.move_vehicle(
+            actions[k, 0], actions[k, 1], x_old, y_old, start_m[k, i, 0], start_m[k, i, 1], plan_m[k, 0],
+            plan_m[k, 1], max_step_m, max_step_m, residual, t[k] >= max_cycles - settle_steps, max_drift_m, roi,
+            box_m[0], box_m[1],
+        )  # fmt: skip
+        pos[i, 0] = x
+        pos[i, 1] = y
+        t[k] += 1
+        # the own links' gains where the mover stands: the field's row (MoverLinksStep), or the snapshot's
+        if has_field:
+            field_row(
+                x, y, pos, i, f_start[k], f_shadow0[k], f_sigma[k], decorrelation_m, f_k_lo[k], f_k_hi[k],
+                f_phase[k], f_g0[k], shadow,
+            )  # fmt: skip
+            for j in range(n):
+                gain[j] = eirp_dbm - shadow[j]
+            row_gain = gain
+            col_gain = gain
+            col_shadow = shadow
+        else:
+            row_gain = gain_row_db[k]
+            col_gain = gain_col_db[k]
+            col_shadow = shadow_col_db[k]
+        for j in range(n):
+            if target[k, i, j]:
+                s_dbm = moved_signal_dbm(x, y, pos, i, j, period_m, los_row[k], row_gain, wb1, range2_m2)
+                p[k, i, j] = success_at_level(
+                    s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
+                )
+            else:
+                p[k, i, j] = 0.0
+        p_col, rx_col = mover_column(
+            x, y, pos, i, period_m, los[k], col_gain, col_shadow, eirp_dbm, wb1, range2_m2, idx[k], val[k],
+            noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
+            np.ascontiguousarray(target[k, :, i]),
+        )  # fmt: skip
+        for j in range(n):
+            p[k, j, i] = p_col[j]
+            rx_dbm[k, j, i] = rx_col[j]
+        rows[0] = i
+        _update_columns(
+            power_mw[k], count[k], head[k], rsrp_dbm[k], age[k], rx_dbm[k], p[k], uniform[k], fade[k], normal[k],
+            error_db, rows,
+        )  # fmt: skip
+        head[k] = (head[k] + 1) % window
+        u, prr, jain, cnt = step.utility_of(p[k, i], target[k, i], p_min, normalise)
+        scalars[k, 0] = u
+        scalars[k, 2] = prr
+        scalars[k, 4] = jain
+        step.move_geometry(i, pos, period_m, disp_m[k], dist2_m2[k])
+        reward_out[k], scalars[k, 5] = step.step_reward(u, scalars[k, 5], improvement)
+        scalars[k, 7], scalars[k, 6], scalars[k, 9], better = step.own_state_update(
+            step.per_receiver(u, cnt, normalise), scalars[k, 6], scalars[k, 9]
+        )
+        if better:
+            best_m[k, 0] = x
+            best_m[k, 1] = y
+        done_out[k] = t[k] >= max_cycles
+        for j in range(n):
+            drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
+            drift[j, 1] = pos[j, 1] - start_m[k, j, 1]
+        ob = _observation_kernel(
+            disp_m[k], dist2_m2[k], co_table[k], target[k], pos, drift, t[k] / max_cycles,
+            k_neighbours, scale_m, region_m, interferer_range_m, obs_clip, rows, size, extra, alpha, beta,
+            gamma, logistic, model_p_min, p[k],
+        )  # fmt: skip
+        for j in range(n):  # scaled_rsrp and age / window of the mover's column
+            v = (rsrp_dbm[k, j, i] - RSRP_REF_DBM) / RSRP_SCALE_DB
+            rsrp_scaled[j, i] = v if np.isfinite(v) else 0.0
+            age_scaled[j, i] = age[k, j, i] / window
+        _measured_kernel(
+            ob, disp_m[k], dist2_m2[k], co_table[k], rsrp_scaled, age_scaled, slot_frac[k], sub_frac[k], rows,
+            k_neighbours, v0_size, scale_m, obs_clip,
+        )  # fmt: skip
+        hz = horizon[k]
+        left = max(hz - t[k], 0)
+        moving = max(min(hz, max_cycles - settle_steps) - t[k], 0)
+        u_now[0] = scalars[k, 6]
+        u_prev[0] = scalars[k, 7]
+        drift_one[0, 0] = drift[i, 0]
+        drift_one[0, 1] = drift[i, 1]
+        _own_v3_kernel(ob, own_v1_offset, obs_clip, scale_m, u_now, u_prev, drift_one, left / hz, moving * max_step_m)
+        for f in range(size):
+            obs_out[k, f] = ob[0, f]
+        info_out[k, 0] = u
+        info_out[k, 1] = scalars[k, 1]
+        info_out[k, 2] = prr
+        info_out[k, 3] = scalars[k, 3]
+        info_out[k, 4] = jain
+        info_out[k, 5] = x - x_old
+        info_out[k, 6] = y - y_old
+        info_out[k, 7] = 1.0 if clipped else 0.0
