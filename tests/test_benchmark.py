@@ -19,15 +19,15 @@ from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.experiments import benchmark
 from cv2x_marl.experiments import evaluate as ev
 
-#: the ids the tests run in place of the tasks' new ids until those are merged; after the merge set
-#: ``STAND_IN_IDS = dict(tasks.TASK_ENV_IDS)`` (cooperative: best-response joins its methods)
-STAND_IN_IDS = dict(tasks.TASK_ENV_IDS)
+#: the tasks' options in these tests: 10 steps instead of 100 (the reachable square, and so the ceiling's
+#: search, 10x smaller in side); everything else is the task's
+QUICK_OPTIONS = {**tasks.BASE_OPTIONS, "max_cycles": 10}
 MODELS = Path(__file__).resolve().parents[1] / "agents" / "models"
 
 
 def stand_in_tasks() -> dict[str, tasks.Task]:
-    """The task table with :data:`STAND_IN_IDS` (the same names, methods, refusals and seed lists)."""
-    return {n: tasks.Task(**{**t.__dict__, "env_id": STAND_IN_IDS[n]}) for n, t in tasks.TASKS.items()}
+    """The task table with :data:`QUICK_OPTIONS` (the same ids, names, methods, refusals and seed lists)."""
+    return {n: tasks.Task(**{**t.__dict__, "options": QUICK_OPTIONS}) for n, t in tasks.TASKS.items()}
 
 
 # ------------------------------------------------------------------------------------------ task table
@@ -346,3 +346,33 @@ def test_benchmark_parse_models(tmp_path: Path) -> None:
         "singlemover": {"ppo": [f"ppo:{tmp_path}/s0/model.zip", f"ppo:{tmp_path}/s1/model.zip"]},
         "cooperative": {"mappo": [f"ppo:{tmp_path}/s0/model.zip"]},
     }
+
+
+def test_cooperative_gains_are_of_the_team_objective(tmp_path: Path) -> None:
+    """On a team task every row of an episode carries the team's gain: eq. 17 of J, the mean over the
+    vehicles of the per-receiver utility, recomputed here from the env itself (team_search.team_objective)
+    and from the rows; the network mean PRR likewise."""
+    from cv2x_marl.env.registry import make_parallel_env
+    from cv2x_marl.env.team_search import team_objective
+
+    seeds = [5, 6]
+    opts = {"max_cycles": 3}
+    summary, rows = ev.evaluate_rows("cv2x/Cooperative-v0", "gbmu", 0, 0, progress=False, seeds=seeds, env_kwargs=opts)
+    assert summary["gains_of"].startswith("the team")
+    env = make_parallel_env("cv2x/Cooperative-v0", **opts)
+    for ep, seed in enumerate(seeds):
+        mine = [r for r in rows if r["episode"] == ep]
+        assert len(mine) == env.n
+        env.reset(seed=seed)
+        j0 = team_objective(env.links, env.positions_m, env.p_min)
+        assert np.mean([r["utility_start"] for r in mine]) == pytest.approx(j0, rel=1e-12)
+        j1 = np.mean([r["utility_end"] for r in mine])
+        p0, p1 = np.mean([r["prr_start"] for r in mine]), np.mean([r["prr_end"] for r in mine])
+        for r in mine:
+            assert r["utility_gain"] == pytest.approx((j1 - j0) / abs(j0), rel=1e-12)
+            assert r["prr_gain"] == pytest.approx((p1 - p0) / p0, rel=1e-12)
+    # an individually rewarded env keeps eq. 17 per mover
+    single, srows = ev.evaluate_rows("cv2x/SingleMover-v3", "gbmu", 0, 0, progress=False, seeds=seeds, env_kwargs=opts)
+    assert single["gains_of"] == "each mover (eq. 17)"
+    for r in srows:
+        assert r["utility_gain"] == pytest.approx((r["utility_end"] - r["utility_start"]) / abs(r["utility_start"]))

@@ -23,7 +23,7 @@ from cv2x_marl.env import step
 from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
 from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
 from cv2x_marl.sim.kernels import moved_signal_dbm, mover_column, success_at_level
-from cv2x_marl.sim.kernels.field import pair_field_db
+from cv2x_marl.sim.kernels.field import field_row_into
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -151,47 +151,6 @@ class V3Stacks:
 
 
 @njit(cache=True)
-def field_row(
-    cx: float,
-    cy: float,
-    positions_m: FloatArray,
-    mover: int,
-    start_m: FloatArray,
-    shadow0_db: FloatArray,
-    sigma_db: FloatArray,
-    decorrelation_m: float,
-    k_lo: FloatArray,
-    k_hi: FloatArray,
-    phase: FloatArray,
-    g0: FloatArray,
-    out: FloatArray,
-) -> None:
-    """Into ``out`` [N]: the field's shadowing of ``mover``'s links with it at ``(cx, cy)`` (0 at itself):
-    the arithmetic of :func:`cv2x_marl.sim.kernels.field.field_row_db` for one candidate."""
-    n = positions_m.shape[0]
-    mx = cx - start_m[mover, 0]
-    my = cy - start_m[mover, 1]
-    for j in range(n):
-        if j == mover:
-            out[j] = 0.0
-            continue
-        jx = positions_m[j, 0] - start_m[j, 0]
-        jy = positions_m[j, 1] - start_m[j, 1]
-        a = min(mover, j)
-        b = max(mover, j)
-        if mover < j:
-            out[j] = pair_field_db(
-                mx, my, jx, jy, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                phase[a, b], g0[a, b],
-            )  # fmt: skip
-        else:
-            out[j] = pair_field_db(
-                jx, jy, mx, my, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                phase[a, b], g0[a, b],
-            )  # fmt: skip
-
-
-@njit(cache=True)
 def _mover_steps_v3(
     active: NDArray[np.bool_],
     actions: FloatArray,
@@ -314,7 +273,7 @@ def _mover_steps_v3(
         t[k] += 1
         # the own links' gains where the mover stands: the field's row (MoverLinksStep), or the snapshot's
         if has_field:
-            field_row(
+            field_row_into(
                 x, y, pos, i, f_start[k], f_shadow0[k], f_sigma[k], decorrelation_m, f_k_lo[k], f_k_hi[k],
                 f_phase[k], f_g0[k], shadow,
             )  # fmt: skip

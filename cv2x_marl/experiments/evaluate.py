@@ -31,6 +31,7 @@ from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy
 from cv2x_marl.policies.baselines import Baseline, is_baseline_file, load_baseline, make_baseline_policy
+from cv2x_marl.policies.optimum import uses_team_search
 from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
 from cv2x_marl.regression.model import PAPER_MODEL
 from cv2x_marl.runs import run_folder
@@ -417,6 +418,9 @@ def evaluate_rows(
         with np.errstate(divide="ignore", invalid="ignore"):
             ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
             pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
+        team = uses_team_search(env)  # the team is rewarded and every vehicle moves: gains of the team
+        if team:
+            ug, pg = team_gain(rows, "utility_start", "utility_end"), team_gain(rows, "prr_start", "prr_end")
         for row, a, b in zip(rows, ug, pg, strict=True):
             row["utility_gain"], row["prr_gain"] = float(a), float(b)
         summary: dict[str, Any] = {
@@ -425,6 +429,7 @@ def evaluate_rows(
             "episodes": episodes,
             "seed": seed if seeds is None else None,
             "movers_per_episode": len(movers),
+            "gains_of": "the team (mean over the vehicles)" if team else "each mover (eq. 17)",
             "mean_utility_gain": float(np.nanmean(ug)),
             "mean_prr_gain": float(np.nanmean(pg)),
             "effectiveness": float(np.mean(ug > 1e-9)),
@@ -442,6 +447,8 @@ def evaluate_rows(
             uo = np.array([r["utility_optimum"] for r in rows])
             with np.errstate(divide="ignore", invalid="ignore"):
                 og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+            if team:
+                og = team_gain(rows, "utility_start", "utility_optimum")
             for row, g in zip(rows, og, strict=True):
                 row["optimum_gain"] = float(g)
             summary["optimum_utility_gain"] = float(np.nanmean(og))
@@ -463,6 +470,23 @@ def evaluate_rows(
             atomic_write(out_dir / "episodes.csv", write)
             write_json(out_dir / "summary.json", summary)
         return summary, rows
+
+
+def team_gain(rows: Sequence[dict[str, Any]], start: str, end: str) -> np.ndarray:
+    """[rows] the gain of the team in each row's episode (the same value on every row of it): eq. 17 of
+    the mean over the episode's movers, ``(mean(end) - mean(start)) / |mean(start)|`` (NaN when the mean
+    start is 0). With the utility per target receiver this is the gain of the Cooperative task's team
+    objective J (:mod:`cv2x_marl.env.team_search`); with PRRs, of the network mean PRR."""
+    groups: dict[tuple[int, int], list[int]] = {}
+    for k, r in enumerate(rows):
+        groups.setdefault((int(r.get("run", 0)), int(r["episode"])), []).append(k)
+    out = np.full(len(rows), np.nan)
+    for index in groups.values():
+        j0 = float(np.mean([rows[k][start] for k in index]))
+        j1 = float(np.mean([rows[k][end] for k in index]))
+        if j0 != 0:
+            out[index] = (j1 - j0) / abs(j0)
+    return out
 
 
 def episode_means(rows: Sequence[dict[str, Any]], key: str, runs: int, episodes: int) -> np.ndarray:

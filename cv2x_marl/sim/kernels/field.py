@@ -90,6 +90,48 @@ def field_shadow_db(
 
 
 @njit(cache=True)
+def field_row_into(
+    cx: float,
+    cy: float,
+    positions_m: FloatArray,
+    mover: int,
+    start_m: FloatArray,
+    shadow0_db: FloatArray,
+    sigma_db: FloatArray,
+    decorrelation_m: float,
+    k_lo: FloatArray,
+    k_hi: FloatArray,
+    phase: FloatArray,
+    g0: FloatArray,
+    out: FloatArray,
+) -> None:
+    """Into ``out`` [N]: the shadowing of ``mover``'s links with it at ``(cx, cy)`` (m), every other vehicle
+    at ``positions_m`` [N, 2] (its own row there is ignored); 0 at ``mover``. Equal to row ``mover`` of
+    :func:`field_shadow_db` with the mover there (the same arithmetic)."""
+    n = positions_m.shape[0]
+    mx = cx - start_m[mover, 0]
+    my = cy - start_m[mover, 1]
+    for j in range(n):
+        if j == mover:
+            out[j] = 0.0
+            continue
+        jx = positions_m[j, 0] - start_m[j, 0]
+        jy = positions_m[j, 1] - start_m[j, 1]
+        a = min(mover, j)
+        b = max(mover, j)
+        if mover < j:
+            out[j] = pair_field_db(
+                mx, my, jx, jy, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
+                phase[a, b], g0[a, b],
+            )  # fmt: skip
+        else:
+            out[j] = pair_field_db(
+                jx, jy, mx, my, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
+                phase[a, b], g0[a, b],
+            )  # fmt: skip
+
+
+@njit(cache=True)
 def field_row_db(
     candidates_m: FloatArray,
     positions_m: FloatArray,
@@ -103,33 +145,15 @@ def field_row_db(
     phase: FloatArray,
     g0: FloatArray,
 ) -> FloatArray:
-    """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m), every other vehicle
-    at ``positions_m`` [N, 2] (its own row there is ignored); 0 in column ``mover``. Row m equals row
-    ``mover`` of :func:`field_shadow_db` with the mover at candidate m (the same arithmetic)."""
+    """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m): :func:`field_row_into`
+    per candidate; 0 in column ``mover``."""
     m_count = candidates_m.shape[0]
-    n = positions_m.shape[0]
-    out = np.zeros((m_count, n))
+    out = np.zeros((m_count, positions_m.shape[0]))
     for m in range(m_count):
-        mx = candidates_m[m, 0] - start_m[mover, 0]
-        my = candidates_m[m, 1] - start_m[mover, 1]
-        for j in range(n):
-            if j == mover:
-                continue
-            jx = positions_m[j, 0] - start_m[j, 0]
-            jy = positions_m[j, 1] - start_m[j, 1]
-            a = min(mover, j)
-            b = max(mover, j)
-            if mover < j:
-                s = pair_field_db(
-                    mx, my, jx, jy, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                    phase[a, b], g0[a, b],
-                )  # fmt: skip
-            else:
-                s = pair_field_db(
-                    jx, jy, mx, my, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                    phase[a, b], g0[a, b],
-                )  # fmt: skip
-            out[m, j] = s
+        field_row_into(
+            candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, start_m, shadow0_db, sigma_db,
+            decorrelation_m, k_lo, k_hi, phase, g0, out[m],
+        )  # fmt: skip
     return out
 
 
