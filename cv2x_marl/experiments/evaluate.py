@@ -429,7 +429,6 @@ def evaluate_rows(
             "episodes": episodes,
             "seed": seed if seeds is None else None,
             "movers_per_episode": len(movers),
-            "gains_of": "the team (mean over the vehicles)" if team else "each mover (eq. 17)",
             "mean_utility_gain": float(np.nanmean(ug)),
             "mean_prr_gain": float(np.nanmean(pg)),
             "effectiveness": float(np.mean(ug > 1e-9)),
@@ -443,6 +442,8 @@ def evaluate_rows(
             "runtime_s": runtime,
             "env_steps": steps,
         }
+        if team or protocol:  # (the default path's summary keeps its keys: tests/reference)
+            summary["gains_of"] = "the team (mean over the vehicles)" if team else "each mover (eq. 17)"
         if vs_optimum:
             uo = np.array([r["utility_optimum"] for r in rows])
             with np.errstate(divide="ignore", invalid="ignore"):
