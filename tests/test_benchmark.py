@@ -376,3 +376,19 @@ def test_cooperative_gains_are_of_the_team_objective(tmp_path: Path) -> None:
     assert single["gains_of"] == "each mover (eq. 17)"
     for r in srows:
         assert r["utility_gain"] == pytest.approx((r["utility_end"] - r["utility_start"]) / abs(r["utility_start"]))
+
+
+def test_offset_policies_are_refused_where_actions_are_speed_commands() -> None:
+    """A scripted offset mover is never reinterpreted as speed and lane commands (issue 27, item 3)."""
+    from types import SimpleNamespace
+
+    from cv2x_marl.policies import registry
+
+    speed_env = SimpleNamespace(mode="traffic", traffic_action="speed")
+    for name in registry.OFFSET_POLICIES:
+        with pytest.raises(
+            ValueError, match=rf"policy '{name}' moves vehicles by position offsets.*allowed here: static"
+        ):
+            registry.make_policy(name, speed_env)  # type: ignore[arg-type]
+    assert registry.make_policy("static", speed_env).name == "static"  # type: ignore[arg-type]
+    assert set(registry.OFFSET_POLICIES) | {"static", "random"} == set(registry.SCRIPTED)

@@ -38,6 +38,23 @@ MODELLED = ("gbmu", "greedy", "planner", "sensing")
 PPO_PREFIX = "ppo:"
 
 
+#: the scripted policies whose actions are position offsets (``max_step_m`` steps): refused where an
+#: action means something else (traffic mode with ``traffic_action="speed"``: speed and lane commands)
+OFFSET_POLICIES = ("gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response")
+
+
+def refuse_action_space(spec: str, env: MobilityEnv) -> None:
+    """Refuse a policy that cannot act in ``env``'s action space, naming it, the env's setting and the
+    policies that can: an offset policy is never reinterpreted as speed and lane commands."""
+    speed = getattr(env, "mode", "snapshot") == "traffic" and getattr(env, "traffic_action", "offset") == "speed"
+    if speed and spec in OFFSET_POLICIES:
+        raise ValueError(
+            f"policy {spec!r} moves vehicles by position offsets, but this env's actions are speed and lane "
+            "commands (mode='traffic', traffic_action='speed'); allowed here: static, random, "
+            f"{PPO_PREFIX}PATH (a model trained on this action space)"
+        )
+
+
 def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delta: float = 100.0) -> Policy:
     """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response | ppo:PATH``.
 
@@ -48,6 +65,7 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
             (:func:`~cv2x_marl.regression.model.load_model`: ``paper-table2``, a fit folder or a model file).
         delta: step size per env step (gbmu, greedy, oracle).
     """
+    refuse_action_space(spec, env)
     if spec == "static":
         return StaticPolicy()
     if spec == "random":
