@@ -2,7 +2,10 @@
 
 Reference values: the separate numpy-reference calls (``SnapshotLinks.evaluate`` / ``rx_dbm``) and the
 full ``MobilityEnv.step`` (every vehicle's links and measurements); every comparison is exact
-(``np.array_equal``), since the fast paths use the same compiled arithmetic on the same inputs.
+(``np.array_equal``), since the fast paths use the same compiled arithmetic on the same inputs, except
+where the compiled received power meets numpy's (``rx_dbm``): numba's ``log10`` against numpy's (SIMD on
+some CPUs) differ in the last ulps, so those compare to :data:`RX_ATOL_DB` and are ``kernel_equality``
+tests (rerun by ``make test-portable``).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from cv2x_marl.env.single import SingleMoverEnvV3
 from cv2x_marl.sim import kernels
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
+#: compiled vs numpy received power (dB): a few ulps of log10 on values of about 100 dB are about 1e-13 dB
+RX_ATOL_DB = 1e-9
 
 
 def _v3(**kw: Any) -> MobilityEnv:
@@ -34,6 +39,7 @@ def _moved(env: MobilityEnv, rng: np.random.Generator, spread_m: float = 40.0) -
     return env.start_m + rng.normal(0.0, spread_m, env.start_m.shape) * moving
 
 
+@pytest.mark.kernel_equality
 @pytest.mark.parametrize("kw", [{}, {"shadow_field": False}, {"overrides": ["road.wrap_distances=true"]}])
 def test_evaluate_rx_equals_the_separate_calls_bit_for_bit(kw: dict[str, Any]) -> None:
     env = _v3(**{**kw, "overrides": [*FAST["overrides"], *kw.get("overrides", [])]})
@@ -46,10 +52,13 @@ def test_evaluate_rx_equals_the_separate_calls_bit_for_bit(kw: dict[str, Any]) -
         p_ref, geometry_ref = links.evaluate(pos)
         assert np.array_equal(p, p_ref)
         assert np.array_equal(geometry.disp_m, geometry_ref.disp_m)
-        assert np.array_equal(rx, links.rx_dbm(pos))  # the numpy reference: EIRP - PL - shadowing
+        ref = links.rx_dbm(pos)  # the numpy reference: EIRP - PL - shadowing
+        assert np.array_equal(np.isneginf(rx), np.isneginf(ref))
+        np.testing.assert_allclose(rx, ref, rtol=0, atol=RX_ATOL_DB)
         assert np.isneginf(np.diag(rx)).all()
 
 
+@pytest.mark.kernel_equality
 def test_pair_rx_dbm_equals_the_numpy_reference_with_a_cut_off() -> None:
     env = _v3(overrides=[*FAST["overrides"], "link.max_range_m=250"])
     env.reset(seed=2)
@@ -60,7 +69,8 @@ def test_pair_rx_dbm_equals_the_numpy_reference_with_a_cut_off() -> None:
     rx = kernels.pair_rx_dbm(pos, a[0], a[1], shadow, float(links.eirp_dbm), a[3], a[4])
     ref = links.rx_dbm(pos)
     assert np.isneginf(ref).sum() > env.n  # the cut-off is exercised
-    assert np.array_equal(rx, ref)
+    assert np.array_equal(np.isneginf(rx), np.isneginf(ref))
+    np.testing.assert_allclose(rx, ref, rtol=0, atol=RX_ATOL_DB)
 
 
 def test_mover_links_step_equals_the_full_evaluation() -> None:

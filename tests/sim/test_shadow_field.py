@@ -71,6 +71,7 @@ def test_equal_to_the_snapshot_at_the_start_and_symmetric() -> None:
     assert np.all(s[3, off[3]] != field.shadow0_db[3, off[3]])
 
 
+@pytest.mark.kernel_equality
 def test_compiled_equals_the_numpy_reference() -> None:
     """numba's cos / exp against numpy's: equal to 1e-9 dB (measured about 1e-12)."""
     field, start = _draw(15, 2, 0.3)
@@ -193,6 +194,7 @@ def links_with_field():
     return SnapshotLinks(cfg, snap, field=field), SnapshotLinks(cfg, snap, compiled=False, field=field), snap
 
 
+@pytest.mark.kernel_equality
 def test_links_with_the_field_compiled_equal_numpy(links_with_field) -> None:
     sl, ref, snap = links_with_field
     assert sl.compiled and not ref.compiled
@@ -208,6 +210,7 @@ def test_links_with_the_field_compiled_equal_numpy(links_with_field) -> None:
     assert not np.allclose(sl.success(pos), plain.success(pos))
 
 
+@pytest.mark.kernel_equality
 def test_mover_row_with_the_field_equals_the_evaluated_row(links_with_field) -> None:
     """The mover's own links read the field at the candidate, the interference at the current positions:
     row `mover` of evaluate() with the mover there (numpy reference, 1e-9)."""
