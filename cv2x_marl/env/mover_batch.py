@@ -34,17 +34,13 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step
 from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3
 from cv2x_marl.env.observation import _observation_kernel
+from cv2x_marl.env.step import BASE_PREV, JAIN, N_SCALARS, PRR, PRR0, U0, U_BEST, U_NOW, U_PREV, U_START, U
 from cv2x_marl.sim import kernels
-from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 FloatArray = NDArray[np.float64]
-
-# columns of the per-copy scalar state ``MoverBatch.scalars``
-U, U0, PRR, PRR0, JAIN, BASE_PREV, U_NOW, U_PREV, U_START, U_BEST = range(10)
-N_SCALARS = 10
 
 
 def batch_problem(env: MobilityEnv) -> str | None:
@@ -151,28 +147,15 @@ def _mover_steps(
         pos[i, 0] = x
         pos[i, 1] = y
         t[k] += 1
-        # the mover's links (kernels.mover_row_success's per-link code), then eq. 12 and the summaries
-        for j in range(n):
-            if target[k, i, j]:
-                s_dbm = moved_signal_dbm(x, y, pos, i, j, period_m, los_row[k], gain_row_db[k], wb1, range2_m2)
-                p[k, i, j] = success_at_level(
-                    s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
-                )
-            else:
-                p[k, i, j] = 0.0
-        u, prr, jain, count = step.utility_of(p[k, i], target[k, i], p_min, normalise)
-        scalars[k, U] = u
-        scalars[k, PRR] = prr
-        scalars[k, JAIN] = jain
-        step.move_geometry(i, pos, period_m, disp_m[k], dist2_m2[k])
-        reward_out[k], scalars[k, BASE_PREV] = step.step_reward(u, scalars[k, BASE_PREV], improvement)
-        if version >= 1:
-            scalars[k, U_PREV], scalars[k, U_NOW], scalars[k, U_BEST], better = step.own_state_update(
-                step.per_receiver(u, count, normalise), scalars[k, U_NOW], scalars[k, U_BEST]
-            )
-            if better:
-                best_m[k, 0] = x
-                best_m[k, 1] = y
+        # the mover's links, then eq. 12, the summaries, the reward, the own state and the info row
+        step.mover_row_into(
+            x, y, pos, i, target[k, i], p[k, i], los_row[k], gain_row_db[k], level_db[k], period_m, wb1, range2_m2,
+            link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
+        )  # fmt: skip
+        reward_out[k] = step.record_mover_step(
+            i, x, y, x_old, y_old, clipped, pos, p[k, i], target[k, i], scalars[k], best_m[k], disp_m[k],
+            dist2_m2[k], period_m, p_min, normalise, improvement, version >= 1, info_out[k],
+        )  # fmt: skip
         done_out[k] = t[k] >= max_cycles
         # observation (MobilityEnv._build for the mover, then its own v1 entries)
         for j in range(n):
@@ -192,14 +175,6 @@ def _mover_steps(
                 scalars[k, U_NOW], scalars[k, U_PREV], scalars[k, U_START], scalars[k, U_BEST], best_m[k, 0],
                 best_m[k, 1], plan_m[k, 0], plan_m[k, 1], x, y,
             )  # fmt: skip
-        info_out[k, 0] = u
-        info_out[k, 1] = scalars[k, U0]
-        info_out[k, 2] = prr
-        info_out[k, 3] = scalars[k, PRR0]
-        info_out[k, 4] = jain
-        info_out[k, 5] = x - x_old
-        info_out[k, 6] = y - y_old
-        info_out[k, 7] = 1.0 if clipped else 0.0
 
 
 class MoverBatch:

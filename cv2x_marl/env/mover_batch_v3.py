@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step
 from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
 from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
-from cv2x_marl.sim.kernels import moved_signal_dbm, mover_column, success_at_level
+from cv2x_marl.sim.kernels import mover_column
 from cv2x_marl.sim.kernels.field import field_row_into
 
 if TYPE_CHECKING:
@@ -286,14 +286,10 @@ def _mover_steps_v3(
             row_gain = gain_row_db[k]
             col_gain = gain_col_db[k]
             col_shadow = shadow_col_db[k]
-        for j in range(n):
-            if target[k, i, j]:
-                s_dbm = moved_signal_dbm(x, y, pos, i, j, period_m, los_row[k], row_gain, wb1, range2_m2)
-                p[k, i, j] = success_at_level(
-                    s_dbm, level_db[k, j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm
-                )
-            else:
-                p[k, i, j] = 0.0
+        step.mover_row_into(
+            x, y, pos, i, target[k, i], p[k, i], los_row[k], row_gain, level_db[k], period_m, wb1, range2_m2,
+            link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
+        )  # fmt: skip
         p_col, rx_col = mover_column(
             x, y, pos, i, period_m, los[k], col_gain, col_shadow, eirp_dbm, wb1, range2_m2, idx[k], val[k],
             noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
@@ -308,18 +304,10 @@ def _mover_steps_v3(
             error_db, rows,
         )  # fmt: skip
         head[k] = (head[k] + 1) % window
-        u, prr, jain, cnt = step.utility_of(p[k, i], target[k, i], p_min, normalise)
-        scalars[k, 0] = u
-        scalars[k, 2] = prr
-        scalars[k, 4] = jain
-        step.move_geometry(i, pos, period_m, disp_m[k], dist2_m2[k])
-        reward_out[k], scalars[k, 5] = step.step_reward(u, scalars[k, 5], improvement)
-        scalars[k, 7], scalars[k, 6], scalars[k, 9], better = step.own_state_update(
-            step.per_receiver(u, cnt, normalise), scalars[k, 6], scalars[k, 9]
-        )
-        if better:
-            best_m[k, 0] = x
-            best_m[k, 1] = y
+        reward_out[k] = step.record_mover_step(
+            i, x, y, x_old, y_old, clipped, pos, p[k, i], target[k, i], scalars[k], best_m[k], disp_m[k],
+            dist2_m2[k], period_m, p_min, normalise, improvement, True, info_out[k],
+        )  # fmt: skip
         done_out[k] = t[k] >= max_cycles
         for j in range(n):
             drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
@@ -340,18 +328,10 @@ def _mover_steps_v3(
         hz = horizon[k]
         left = max(hz - t[k], 0)
         moving = max(min(hz, max_cycles - settle_steps) - t[k], 0)
-        u_now[0] = scalars[k, 6]
-        u_prev[0] = scalars[k, 7]
+        u_now[0] = scalars[k, step.U_NOW]
+        u_prev[0] = scalars[k, step.U_PREV]
         drift_one[0, 0] = drift[i, 0]
         drift_one[0, 1] = drift[i, 1]
         _own_v3_kernel(ob, own_v1_offset, obs_clip, scale_m, u_now, u_prev, drift_one, left / hz, moving * max_step_m)
         for f in range(size):
             obs_out[k, f] = ob[0, f]
-        info_out[k, 0] = u
-        info_out[k, 1] = scalars[k, 1]
-        info_out[k, 2] = prr
-        info_out[k, 3] = scalars[k, 3]
-        info_out[k, 4] = jain
-        info_out[k, 5] = x - x_old
-        info_out[k, 6] = y - y_old
-        info_out[k, 7] = 1.0 if clipped else 0.0

@@ -28,6 +28,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env.observation import OWN_V1
+from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
 from cv2x_marl.utility import link_summary
 
 FloatArray = NDArray[np.float64]
@@ -347,3 +348,90 @@ def own_v1_block(
             obs[i], lo, obs_clip, scale_m, reach, u_now[i], u_prev[i], u_start[i], u_best[i], best_m[i, 0],
             best_m[i, 1], plan_m[i, 0], plan_m[i, 1], positions_m[i, 0], positions_m[i, 1],
         )  # fmt: skip
+
+
+# -- the batched one-mover copies (env/mover_batch.py, env/mover_batch_v3.py) ------------------------
+#: columns of the per-copy scalar state ``MoverBatch.scalars`` [K, N_SCALARS]
+U, U0, PRR, PRR0, JAIN, BASE_PREV, U_NOW, U_PREV, U_START, U_BEST = range(10)
+N_SCALARS = 10
+
+
+@njit(cache=True)
+def mover_row_into(
+    x: float,
+    y: float,
+    positions_m: FloatArray,
+    i: int,
+    target_row: NDArray[np.bool_],
+    p_row: FloatArray,
+    los_row: NDArray[np.bool_],
+    gain_row_db: FloatArray,
+    level_db: FloatArray,
+    period_m: FloatArray,
+    wb1: FloatArray,
+    range2_m2: float,
+    link_model: int,
+    per_sinr_db: FloatArray,
+    per: FloatArray,
+    threshold_db: float,
+    sensitivity_dbm: float,
+) -> None:
+    """Into ``p_row`` [N]: the success of mover ``i``'s links with it at ``(x, y)`` (m), 0 where the
+    receiver is not a target: :func:`cv2x_marl.sim.kernels.mover_row_success`'s per-link code (the
+    signal from the moved transmitter, the interference level ``level_db`` [N] of each receiver)."""
+    for j in range(p_row.shape[0]):
+        if target_row[j]:
+            s_dbm = moved_signal_dbm(x, y, positions_m, i, j, period_m, los_row, gain_row_db, wb1, range2_m2)
+            p_row[j] = success_at_level(s_dbm, level_db[j], link_model, per_sinr_db, per, threshold_db, sensitivity_dbm)
+        else:
+            p_row[j] = 0.0
+
+
+@njit(cache=True)
+def record_mover_step(
+    i: int,
+    x: float,
+    y: float,
+    x_old: float,
+    y_old: float,
+    clipped: bool,
+    positions_m: FloatArray,
+    p_row: FloatArray,
+    target_row: NDArray[np.bool_],
+    scalars: FloatArray,
+    best_m: FloatArray,
+    disp_m: FloatArray,
+    dist2_m2: FloatArray,
+    period_m: FloatArray,
+    p_min: float,
+    normalise: bool,
+    improvement: bool,
+    own_state: bool,
+    info: FloatArray,
+) -> float:
+    """What one copy's step records once the mover's links ``p_row`` [N] are known, as ``step_mover``:
+    eq. 12 utility, PRR and Jain into ``scalars`` [N_SCALARS], the pair-geometry update, the reward
+    (returned), with ``own_state`` the v1 own state (best utility and where, ``best_m`` [2]), and the
+    info row ``info`` [8] (``INFO_KEYS``)."""
+    u, prr, jain, count = utility_of(p_row, target_row, p_min, normalise)
+    scalars[U] = u
+    scalars[PRR] = prr
+    scalars[JAIN] = jain
+    move_geometry(i, positions_m, period_m, disp_m, dist2_m2)
+    reward, scalars[BASE_PREV] = step_reward(u, scalars[BASE_PREV], improvement)
+    if own_state:
+        scalars[U_PREV], scalars[U_NOW], scalars[U_BEST], better = own_state_update(
+            per_receiver(u, count, normalise), scalars[U_NOW], scalars[U_BEST]
+        )
+        if better:
+            best_m[0] = x
+            best_m[1] = y
+    info[0] = u
+    info[1] = scalars[U0]
+    info[2] = prr
+    info[3] = scalars[PRR0]
+    info[4] = jain
+    info[5] = x - x_old
+    info[6] = y - y_old
+    info[7] = 1.0 if clipped else 0.0
+    return reward
