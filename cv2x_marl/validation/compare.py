@@ -89,9 +89,9 @@ def authors_figures(
 
     Returns:
         ``distance_m`` [21] (0, 25, ..., 500 m); their Veins simulator's ``pdr`` and unconditional loss
-        shares ``delta_hd``, ``delta_sen``, ``delta_pro``, ``delta_col`` (collisions of any kind) and
-        ``sci_lost`` (the part of the collisions where the SCI was lost), and ``matlab_pdr``, the PDR of
-        their MATLAB implementation of the analytical model.
+        shares ``delta_hd``, ``delta_sen``, ``delta_pro``, ``delta_col`` (collisions), which sum with
+        the PDR to 1; ``sci_lost`` (the figure's "SCI lost" line, drawn beside them: not a fifth share);
+        and ``matlab_pdr``, the PDR of their MATLAB implementation of the analytical model.
     """
     t = _figures_table()
     key = np.array([n_subchannels, packets_per_s, tx_power_dbm, density_veh_per_m], dtype=np.float64)
@@ -266,9 +266,11 @@ def standard_error_pct(pdr_per_seed: np.ndarray) -> np.ndarray:
     k = np.sum(np.isfinite(pdr_per_seed), axis=0)
     if pdr_per_seed.shape[0] < 2:
         return np.full(pdr_per_seed.shape[1], np.nan)
+    valid = np.isfinite(pdr_per_seed)
+    mean = np.where(valid, pdr_per_seed, 0.0).sum(axis=0) / np.maximum(k, 1)
+    dev2 = np.where(valid, (pdr_per_seed - mean[None, :]) ** 2, 0.0).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        sd = np.nanstd(pdr_per_seed, axis=0, ddof=1)
-        return np.asarray(np.where(k >= 2, 100.0 * sd / np.sqrt(k), np.nan))
+        return np.asarray(np.where(k >= 2, 100.0 * np.sqrt(dev2 / (k - 1)) / np.sqrt(k), np.nan))
 
 
 def _pooled(counts: dict[str, np.ndarray], lo: int, hi: int) -> dict[str, float]:
