@@ -385,20 +385,15 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from cv2x_marl.validation.compare import run_validation
+    from cv2x_marl.validation.compare import run_grid, run_validation
 
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
+    run = dict(n_subframes=args.subframes, seeds=args.seeds, sets=args.set or [], workers=args.workers)
     with runs.run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
-        run_validation(
-            args.out,
-            args.densities,
-            args.packets_per_s,
-            args.tx_power_dbm,
-            args.subchannels,
-            args.subframes,
-            args.seeds,
-            args.set or [],
-        )
+        if args.study:
+            run_grid(args.out, densities=args.densities, **run)
+        else:
+            run_validation(args.out, args.densities, args.packets_per_s, args.tx_power_dbm, args.subchannels, **run)
     return 0
 
 
@@ -708,6 +703,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subframes", type=COUNT, default=5000, help="measured subframes per seed")
     p.add_argument("--seeds", type=SEED, nargs="+", default=[1, 2], help="simulator seeds (pooled)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a simulator key (repeatable)")
+    p.add_argument("--study", action="store_true", help="every configuration of the study (docs/validation.md)")
+    p.add_argument("--workers", type=COUNT, default=1, help="simulator runs in this many processes")
     p.set_defaults(func=_cmd_validate)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")

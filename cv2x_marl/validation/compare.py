@@ -21,6 +21,7 @@ Every file is written to a temporary name in ``--out`` and renamed into place.
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
@@ -28,6 +29,7 @@ import os
 import tempfile
 import time
 from collections.abc import Sequence
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -56,10 +58,48 @@ SENSING_THRESHOLD_DBM = -90.5
 BIN_M = 10.0
 MAX_DISTANCE_M = 500.0
 VEINS_NOTE = (
-    "The authors' Veins results (msepulcre/C-V2X, folder simulations/, MATLAB .fig files) are binary "
-    "and could not be read in this environment (no MATLAB/Octave, not in the text index); no Veins "
-    "numbers are reported."
+    "The authors' Veins results and MATLAB model curves are read from the figures of their repository "
+    "(github.com/msepulcre/C-V2X, fig/ and simulations/, MATLAB .fig files read with scipy.io.loadmat), "
+    "shipped as cv2x_marl/validation/data/gonzalez_martin_2019_figures.csv; they exist for the 12 "
+    "configurations of STUDY_CONFIGURATIONS x STUDY_DENSITIES, at 0, 25, ..., 500 m."
 )
+#: the configurations of the authors' figures (and of the study): (sub-channels, packets per s, dBm)
+STUDY_CONFIGURATIONS: tuple[tuple[int, float, float], ...] = (
+    (4, 10.0, 20.0),
+    (2, 10.0, 20.0),
+    (4, 20.0, 20.0),
+    (4, 10.0, 23.0),
+)
+#: ... each at these densities, veh/m
+STUDY_DENSITIES: tuple[float, ...] = (0.1, 0.2, 0.3)
+_FIGURES_CSV = "gonzalez_martin_2019_figures.csv"
+
+
+@functools.cache
+def _figures_table() -> np.ndarray:
+    text = resources.files("cv2x_marl.validation").joinpath("data", _FIGURES_CSV).read_text()
+    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")][1:]
+    return np.array([[float(v) for v in ln.split(",")] for ln in rows])
+
+
+def authors_figures(
+    n_subchannels: int, packets_per_s: float, tx_power_dbm: float, density_veh_per_m: float
+) -> dict[str, np.ndarray] | None:
+    """The authors' curves for one configuration of their figures (190 B), or None for another.
+
+    Returns:
+        ``distance_m`` [21] (0, 25, ..., 500 m); their Veins simulator's ``pdr`` and unconditional loss
+        shares ``delta_hd``, ``delta_sen``, ``delta_pro``, ``delta_col`` (collisions), which sum with
+        the PDR to 1; ``sci_lost`` (the figure's "SCI lost" line, drawn beside them: not a fifth share);
+        and ``matlab_pdr``, the PDR of their MATLAB implementation of the analytical model.
+    """
+    t = _figures_table()
+    key = np.array([n_subchannels, packets_per_s, tx_power_dbm, density_veh_per_m], dtype=np.float64)
+    rows = t[np.all(np.isclose(t[:, :4], key[None, :], rtol=0.0, atol=1e-9), axis=1)]
+    if rows.shape[0] == 0:
+        return None
+    names = ("distance_m", "pdr", "delta_hd", "delta_sen", "delta_pro", "delta_col", "sci_lost", "matlab_pdr")
+    return {name: rows[:, 4 + i].copy() for i, name in enumerate(names)}
 
 
 def simulator_overrides(
@@ -132,33 +172,105 @@ def simulator_overrides(
     }
 
 
-def run_simulator(
-    overrides: dict[str, dict[str, Any]], seeds: Sequence[int], extra_sets: Sequence[str] = ()
+def simulate_seed(
+    overrides: dict[str, dict[str, Any]], seed: int, extra_sets: Sequence[str] = ()
 ) -> dict[str, np.ndarray]:
-    """Run the simulator once per seed and pool the per-bin counts.
+    """One simulator run (one seed) on the matched highway: its per-bin counts.
 
     Args:
         overrides: sections over the ``highway-legacy`` preset (:func:`simulator_overrides`).
-        seeds: one run per seed.
+        seed: the run's seed.
         extra_sets: ``section.key=value`` strings applied last (``--set`` of the command line).
 
     Returns:
-        ``n`` [B] link samples per 10 m bin, ``decoded`` [B], and one [B] count per loss cause
-        (our names), plus ``n_vehicles`` (0-d).
+        ``n`` [B] link samples per 10 m bin, ``decoded`` [B], and one [B] count per loss cause (our
+        names), plus ``n_vehicles`` (0-d) and ``runtime_s`` (0-d, wall time of the run).
     """
+    t0 = time.perf_counter()
     cfg = apply_overrides(from_dict(overrides, preset("highway-legacy")), extra_sets)
     n_bins = round(MAX_DISTANCE_M / BIN_M)
-    out = {k: np.zeros(n_bins, dtype=np.int64) for k in ("n", "decoded", *(c for c, _ in CAUSES))}
-    for seed in seeds:
-        sim = Simulator(cfg)
-        sim.reset(seed=int(seed))
-        acc = sim.run(cfg.sim.n_subframes).metrics
-        out["n"] += acc.bin_n[:n_bins]
-        out["decoded"] += acc.bin_decoded[:n_bins]
-        for name, _ in CAUSES:
-            out[name] += acc.bin_causes[CAUSE_CODE[name], :n_bins]
+    sim = Simulator(cfg)
+    sim.reset(seed=int(seed))
+    acc = sim.run(cfg.sim.n_subframes).metrics
+    out = {"n": acc.bin_n[:n_bins].copy(), "decoded": acc.bin_decoded[:n_bins].copy()}
+    for name, _ in CAUSES:
+        out[name] = acc.bin_causes[CAUSE_CODE[name], :n_bins].copy()
     out["n_vehicles"] = np.asarray(cfg.n_vehicles)
+    out["runtime_s"] = np.asarray(time.perf_counter() - t0)
     return out
+
+
+def _simulate_seed_task(task: tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]) -> dict[str, np.ndarray]:
+    return simulate_seed(*task)
+
+
+def simulate_many(
+    tasks: Sequence[tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]], workers: int = 1
+) -> list[dict[str, np.ndarray]]:
+    """:func:`simulate_seed` of every ``(overrides, seed, extra_sets)`` task, in task order; with
+    ``workers > 1`` in that many processes (each run is independent and seeded, so the results are
+    the same as in one process)."""
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if workers == 1 or len(tasks) <= 1:
+        return [_simulate_seed_task(t) for t in tasks]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # the largest scenes first, so that the pool is not left waiting on one of them at the end
+    order = sorted(range(len(tasks)), key=lambda i: -_task_cost(tasks[i]))
+    ctx = multiprocessing.get_context("spawn")  # no fork of a process holding numba/BLAS threads
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+        done = list(pool.map(_simulate_seed_task, [tasks[i] for i in order]))
+    out: list[dict[str, np.ndarray]] = [{}] * len(tasks)
+    for i, r in zip(order, done, strict=True):
+        out[i] = r
+    return out
+
+
+def _task_cost(task: tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]) -> float:
+    """Relative cost of a task: links per subframe x subframes (vehicles squared x packet rate)."""
+    ov = task[0]
+    n = ov["vehicles"]["density_veh_per_m"] * ov["road"]["length_m"]
+    return float(n * n / ov["traffic"]["rri_ms"] * (ov["sim"]["n_subframes"] + ov["sim"]["warmup_subframes"]))
+
+
+def pool_counts(per_seed: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The per-bin counts of several seeds summed, plus ``pdr_per_seed`` [K, B] (NaN where a seed has no
+    sample in a bin) and ``n_vehicles`` (0-d)."""
+    keys = ("n", "decoded", *(c for c, _ in CAUSES))
+    out = {k: np.sum([r[k] for r in per_seed], axis=0) for k in keys}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out["pdr_per_seed"] = np.array([r["decoded"] / np.where(r["n"] > 0, r["n"], np.nan) for r in per_seed])
+    out["n_vehicles"] = per_seed[0]["n_vehicles"]
+    return out
+
+
+def run_simulator(
+    overrides: dict[str, dict[str, Any]], seeds: Sequence[int], extra_sets: Sequence[str] = (), workers: int = 1
+) -> dict[str, np.ndarray]:
+    """Run the simulator once per seed (:func:`simulate_seed`) and pool the per-bin counts
+    (:func:`pool_counts`); ``workers`` processes (:func:`simulate_many`)."""
+    tasks = [(overrides, int(seed), tuple(extra_sets)) for seed in seeds]
+    return pool_counts(simulate_many(tasks, workers))
+
+
+def standard_error_pct(pdr_per_seed: np.ndarray) -> np.ndarray:
+    """[B] standard error of the pooled PDR of each bin over seeds, in percentage points:
+    ``100 std(PDR_k, ddof=1) / sqrt(K)`` over the K seeds' PDRs (NaN with fewer than two seeds).
+
+    The seeds' runs are independent; within a run the link samples are not (the same vehicles keep
+    their resources for 5-15 periods), so the spread between seeds, not the binomial one of the
+    pooled samples, measures the uncertainty of a curve.
+    """
+    k = np.sum(np.isfinite(pdr_per_seed), axis=0)
+    if pdr_per_seed.shape[0] < 2:
+        return np.full(pdr_per_seed.shape[1], np.nan)
+    valid = np.isfinite(pdr_per_seed)
+    mean = np.where(valid, pdr_per_seed, 0.0).sum(axis=0) / np.maximum(k, 1)
+    dev2 = np.where(valid, (pdr_per_seed - mean[None, :]) ** 2, 0.0).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(k >= 2, 100.0 * np.sqrt(dev2 / (k - 1)) / np.sqrt(k), np.nan))
 
 
 def _pooled(counts: dict[str, np.ndarray], lo: int, hi: int) -> dict[str, float]:
@@ -179,9 +291,16 @@ def compare_density(
     n_subframes: int,
     seeds: Sequence[int],
     extra_sets: Sequence[str] = (),
+    counts: dict[str, np.ndarray] | None = None,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Simulator and analytical model at one density: curves, table rows, loss shares and the mean
-    absolute deviation of the paper's eq. 35 (over the 10 m bins, in percentage points)."""
+    """Simulator and analytical model at one density: curves, table rows, loss shares, the mean
+    absolute deviation of the paper's eq. 35 (over the 10 m bins, in percentage points), the standard
+    error of the simulator's curve over seeds (:func:`standard_error_pct`) and, for the configurations
+    of the authors' figures, their Veins simulator's curve and loss shares (:func:`authors_figures`).
+
+    ``counts``: the seeds' pooled counts (:func:`pool_counts`) when already simulated; None: run them
+    here in ``workers`` processes."""
     centres = (np.arange(round(MAX_DISTANCE_M / BIN_M)) + 0.5) * BIN_M
     table_d = np.asarray(TABLE_DISTANCES_M)
     ana = analytical_pdr(
@@ -198,7 +317,8 @@ def compare_density(
     overrides = simulator_overrides(
         density_veh_per_m, packets_per_s, tx_power_dbm, n_subchannels, packet_bytes, n_subframes
     )
-    counts = run_simulator(overrides, seeds, extra_sets)
+    if counts is None:
+        counts = run_simulator(overrides, seeds, extra_sets, workers)
     runtime_s = time.perf_counter() - t0
     keys = ["pdr"] + [k for _, k in CAUSES]
     sim_curve = [_pooled(counts, j, j + 1) | {"distance_m": float(c)} for j, c in enumerate(centres)]
@@ -224,6 +344,28 @@ def compare_density(
         k: float(100.0 * np.nanmean([abs(s[k] - a[k]) for s, a in zip(sim_curve, ana_curve, strict=True)]))
         for k in keys
     }
+    se = standard_error_pct(counts["pdr_per_seed"])
+    for row, e in zip(sim_curve, se, strict=True):
+        row["se_pct"] = float(e)
+    share_diff = max(abs(shares["simulator"][k] - shares["analytical"][k]) for _, k in CAUSES)
+    veins = authors_figures(n_subchannels, packets_per_s, tx_power_dbm, density_veh_per_m)
+    versus_veins: dict[str, Any] | None = None
+    if veins is not None:
+        sim_pdr = np.array([r["pdr"] for r in sim_curve])
+        ok = np.isfinite(sim_pdr)
+        at = veins["distance_m"]
+        sim_at = np.interp(at, centres[ok], sim_pdr[ok])  # the 10 m curve at the figures' 25 m points
+        ana_at = analytical_pdr(
+            at, 1000.0 * density_veh_per_m, packets_per_s, tx_power_dbm, n_subchannels, packet_bytes
+        )["pdr"]
+        lost_v = float(sum(veins[k].sum() for _, k in CAUSES))
+        versus_veins = {
+            "distance_m": at.tolist(),
+            "veins": {k: veins[k].tolist() for k in ["pdr", *(k for _, k in CAUSES), "sci_lost"]},
+            "mad_pct_simulator_vs_veins": float(100.0 * np.mean(np.abs(sim_at - veins["pdr"]))),
+            "mad_pct_analytical_vs_veins": float(100.0 * np.mean(np.abs(ana_at - veins["pdr"]))),
+            "loss_shares_0_500m": {k: float(veins[k].sum()) / lost_v for _, k in CAUSES},
+        }
     return {
         "density_veh_per_m": density_veh_per_m,
         "n_vehicles": int(counts["n_vehicles"]),
@@ -237,6 +379,12 @@ def compare_density(
         "table": table,
         "loss_shares_0_500m": shares,
         "mad_pct_0_500m": mad_pct,
+        "se_pct_0_500m": {
+            "mean": float(np.nanmean(se)) if np.any(np.isfinite(se)) else math.nan,
+            "max": float(np.nanmax(se)) if np.any(np.isfinite(se)) else math.nan,
+        },
+        "loss_share_max_abs_diff": float(share_diff),
+        "authors_veins": versus_veins,
         "simulator_overrides": overrides,
     }
 
@@ -274,6 +422,9 @@ def _figure(result: dict[str, Any], settings: dict[str, Any], path: Path) -> Non
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     ax1.plot(d, [r["pdr"] for r in sim], "b-", label="simulator (cv2x_marl)")
     ax1.plot(d, [r["pdr"] for r in ana], "b--", label="analytical (Gonzalez-Martin 2019)")
+    veins = result.get("authors_veins")
+    if veins is not None:
+        ax1.plot(veins["distance_m"], veins["veins"]["pdr"], "ko", ms=3, label="authors' Veins simulation")
     ax1.set(xlabel="distance [m]", ylabel="PDR", ylim=(0, 1), xlim=(0, MAX_DISTANCE_M))
     ax1.grid(True)
     ax1.legend(loc="lower left")
@@ -317,9 +468,15 @@ def write_outputs(out_dir: Path, settings: dict[str, Any], results: list[dict[st
     for r in results:
         for source in ("simulator", "analytical"):
             for row in r["curve"][source]:
-                n = row.get("n", "")
-                rows.append([r["density_veh_per_m"], source, row["distance_m"], *(row[k] for k in keys), n])
-    _write_atomic(paths[1], _csv_bytes(["density_veh_per_m", "source", "distance_m", *keys, "n"], rows))
+                n, se = row.get("n", ""), row.get("se_pct", "")
+                rows.append([r["density_veh_per_m"], source, row["distance_m"], *(row[k] for k in keys), n, se])
+        veins = r.get("authors_veins")
+        if veins is not None:
+            for j, d in enumerate(veins["distance_m"]):
+                v = veins["veins"]
+                rows.append([r["density_veh_per_m"], "veins", d, *(v[k][j] for k in keys), "", ""])
+    header = ["density_veh_per_m", "source", "distance_m", *keys, "n", "se_pct"]
+    _write_atomic(paths[1], _csv_bytes(header, rows))
     rows = []
     for r in results:
         for t in r["table"]:
@@ -349,6 +506,7 @@ def run_validation(
     seeds: Sequence[int] = (1, 2),
     sets: Sequence[str] = (),
     packet_bytes: int = 190,
+    workers: int = 1,
 ) -> list[Path]:
     """Compare the simulator with the analytical model at each density and write the outputs
     (:func:`write_outputs`) into ``out_dir``; prints a short table per density. What
@@ -359,6 +517,8 @@ def run_validation(
     """
     if n_subframes < 1:
         raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     settings = {
         "packets_per_s": packets_per_s,
         "tx_power_dbm": tx_power_dbm,
@@ -371,18 +531,187 @@ def run_validation(
         "bin_m": BIN_M,
         "table_window_m": "pooled over [d - 10, d + 10) for the simulator; exactly at d for the analytical model",
     }
-    results = []
-    for rho in densities:
-        r = compare_density(
-            rho, packets_per_s, tx_power_dbm, n_subchannels, packet_bytes, n_subframes, list(seeds), list(sets)
-        )
-        results.append(r)
-        print(f"density {rho:g} veh/m: {r['n_vehicles']} vehicles, simulator {r['simulator_runtime_s']:.1f} s")
-        for t in r["table"]:
-            sim, ana = t["simulator"], t["analytical"]
-            print(f"  {t['distance_m']:5.0f} m  PDR simulator {sim['pdr']:.3f}  analytical {ana['pdr']:.3f}")
-        print(f"  mean |PDR difference| over 0-500 m: {r['mad_pct_0_500m']['pdr']:.2f} percentage points")
+    config = (int(n_subchannels), float(packets_per_s), float(tx_power_dbm))
+    results = _compare_configurations([config], densities, packet_bytes, n_subframes, seeds, sets, workers)[0]
     paths = write_outputs(out_dir, settings, results)
     for p in paths:
         print(p)
+    return paths
+
+
+def _compare_configurations(
+    configurations: Sequence[tuple[int, float, float]],
+    densities: Sequence[float],
+    packet_bytes: int,
+    n_subframes: int,
+    seeds: Sequence[int],
+    sets: Sequence[str],
+    workers: int,
+) -> list[list[dict[str, Any]]]:
+    """:func:`compare_density` of every (configuration, density), the simulator runs of all of them (one
+    per seed) in one pool of ``workers`` processes; prints a short table of each."""
+    tasks, index = [], []
+    for c, (n_sub, lam, pt) in enumerate(configurations):
+        for d, rho in enumerate(densities):
+            ov = simulator_overrides(rho, lam, pt, n_sub, packet_bytes, n_subframes)  # refuses bad input first
+            for seed in seeds:
+                tasks.append((ov, int(seed), tuple(sets)))
+                index.append((c, d))
+    t0 = time.perf_counter()
+    runs = simulate_many(tasks, workers)
+    print(f"simulator: {len(tasks)} runs in {time.perf_counter() - t0:.1f} s with {workers} worker(s)")
+    out: list[list[dict[str, Any]]] = []
+    for c, (n_sub, lam, pt) in enumerate(configurations):
+        rows = []
+        for d, rho in enumerate(densities):
+            per_seed = [r for r, key in zip(runs, index, strict=True) if key == (c, d)]
+            counts = pool_counts(per_seed)
+            r = compare_density(rho, lam, pt, n_sub, packet_bytes, n_subframes, seeds, sets, counts=counts)
+            r["simulator_runtime_s"] = float(sum(float(x["runtime_s"]) for x in per_seed))
+            rows.append(r)
+            _print_density(r, n_sub, lam, pt)
+        out.append(rows)
+    return out
+
+
+def _print_density(r: dict[str, Any], n_sub: int, lam: float, pt: float) -> None:
+    se = r["se_pct_0_500m"]
+    print(
+        f"S={n_sub} {lam:g} Hz {pt:g} dBm, density {r['density_veh_per_m']:g} veh/m: {r['n_vehicles']} vehicles, "
+        f"simulator {r['simulator_runtime_s']:.1f} s (CPU, all seeds)"
+    )
+    veins = r["authors_veins"]
+    for t in r["table"]:
+        sim, ana = t["simulator"], t["analytical"]
+        line = f"  {t['distance_m']:5.0f} m  PDR simulator {sim['pdr']:.3f}  analytical {ana['pdr']:.3f}"
+        if veins is not None and t["distance_m"] in veins["distance_m"]:
+            line += f"  authors' Veins {veins['veins']['pdr'][veins['distance_m'].index(t['distance_m'])]:.3f}"
+        print(line)
+    print(
+        f"  mean |PDR difference| over 0-500 m: {r['mad_pct_0_500m']['pdr']:.2f} points (standard error of the "
+        f"curve over seeds: mean {se['mean']:.2f}, max {se['max']:.2f} points); loss shares off by at most "
+        f"{r['loss_share_max_abs_diff']:.3f}"
+    )
+    if veins is not None:
+        print(
+            f"  against the authors' Veins: simulator {veins['mad_pct_simulator_vs_veins']:.2f} points, "
+            f"analytical {veins['mad_pct_analytical_vs_veins']:.2f} points (25 m points, 0-500 m)"
+        )
+
+
+def run_grid(
+    out_dir: Path,
+    configurations: Sequence[tuple[int, float, float]] = STUDY_CONFIGURATIONS,
+    densities: Sequence[float] = STUDY_DENSITIES,
+    n_subframes: int = 5000,
+    seeds: Sequence[int] = (1, 2),
+    sets: Sequence[str] = (),
+    packet_bytes: int = 190,
+    workers: int = 1,
+) -> list[Path]:
+    """Every configuration x density (the study's: :data:`STUDY_CONFIGURATIONS` x :data:`STUDY_DENSITIES`)
+    in one pool of ``workers`` processes (``cv2x-marl validate --study``). Writes one folder per
+    configuration, ``s<S>_l<lambda>_p<dBm>/``, with :func:`write_outputs`' files, and ``grid.csv`` /
+    ``grid.md``: per (configuration, density) the mean absolute PDR difference to the model and to the
+    authors' Veins curve, the standard error of the simulator's curve, and the loss shares of all three.
+
+    Raises:
+        ValueError: a setting the matched configuration cannot take (named in the message).
+    """
+    if n_subframes < 1:
+        raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    for n_sub, lam, pt in configurations:  # refuse before anything runs or is written
+        for rho in densities:
+            simulator_overrides(rho, lam, pt, n_sub, packet_bytes, n_subframes)
+    t0 = time.perf_counter()
+    grid = _compare_configurations(configurations, densities, packet_bytes, n_subframes, seeds, sets, workers)
+    paths: list[Path] = []
+    summary = []
+    for (n_sub, lam, pt), results in zip(configurations, grid, strict=True):
+        settings = {
+            "packets_per_s": lam,
+            "tx_power_dbm": pt,
+            "n_subchannels": n_sub,
+            "packet_bytes": packet_bytes,
+            "subframes_per_seed": n_subframes,
+            "seeds": list(seeds),
+            "simulator_sets": list(sets),
+            "sensing_threshold_dbm": SENSING_THRESHOLD_DBM,
+            "bin_m": BIN_M,
+        }
+        paths += write_outputs(out_dir / f"s{n_sub}_l{lam:g}_p{pt:g}", settings, results)
+        summary += [((n_sub, lam, pt), r) for r in results]
+    paths += _write_grid_summary(out_dir, summary, n_subframes, seeds, sets, time.perf_counter() - t0, workers)
+    for p in paths[-2:]:
+        print(p)
+    return paths
+
+
+def _write_grid_summary(
+    out_dir: Path,
+    summary: list[tuple[tuple[int, float, float], dict[str, Any]]],
+    n_subframes: int,
+    seeds: Sequence[int],
+    sets: Sequence[str],
+    wall_s: float,
+    workers: int,
+) -> list[Path]:
+    """``grid.csv`` and ``grid.md`` of :func:`run_grid`."""
+    cause_keys = [k for _, k in CAUSES]
+    header = [
+        "n_subchannels", "packets_per_s", "tx_power_dbm", "density_veh_per_m", "analytical_cbr",
+        "mad_pdr_pct_vs_analytical", "se_pct_mean", "se_pct_max", "mad_pdr_pct_vs_veins",
+        "mad_pdr_pct_analytical_vs_veins", "pdr200_sim", "pdr200_ana", "pdr200_veins", "pdr300_sim", "pdr300_ana",
+        "pdr300_veins", "loss_share_max_abs_diff",
+        *(f"share_{k}_{src}" for src in ("sim", "ana", "veins") for k in cause_keys),
+    ]  # fmt: skip
+    rows, md = [], []
+    md.append(
+        f"Simulator: {len(seeds)} seeds ({', '.join(map(str, seeds))}) x {n_subframes} subframes, "
+        f"sets {list(sets) or 'none'}; {wall_s:.0f} s wall with {workers} worker(s).\n"
+    )
+    md.append(
+        "| S | Hz | dBm | veh/m | CBR (ana) | MAD vs ana | SE mean / max | MAD vs Veins | MAD ana vs Veins "
+        "| PDR 200 m sim / ana / Veins | PDR 300 m sim / ana / Veins | shares sim (HD SEN PRO COL) "
+        "| shares ana | shares Veins | max share diff |"
+    )
+    md.append("|" + "---:|" * 15)
+    for (n_sub, lam, pt), r in summary:
+        veins = r["authors_veins"]
+        tab = {t["distance_m"]: t for t in r["table"]}
+
+        def vpdr(d: float, v: dict[str, Any] | None = veins) -> float:
+            return v["veins"]["pdr"][v["distance_m"].index(d)] if v is not None else math.nan
+
+        sh = r["loss_shares_0_500m"]
+        vsh = veins["loss_shares_0_500m"] if veins is not None else dict.fromkeys(cause_keys, math.nan)
+        row = [
+            n_sub, lam, pt, r["density_veh_per_m"], r["analytical_cbr"], r["mad_pct_0_500m"]["pdr"],
+            r["se_pct_0_500m"]["mean"], r["se_pct_0_500m"]["max"],
+            veins["mad_pct_simulator_vs_veins"] if veins is not None else math.nan,
+            veins["mad_pct_analytical_vs_veins"] if veins is not None else math.nan,
+            tab[200.0]["simulator"]["pdr"], tab[200.0]["analytical"]["pdr"], vpdr(200.0),
+            tab[300.0]["simulator"]["pdr"], tab[300.0]["analytical"]["pdr"], vpdr(300.0),
+            r["loss_share_max_abs_diff"],
+            *(sh["simulator"][k] for k in cause_keys), *(sh["analytical"][k] for k in cause_keys),
+            *(vsh[k] for k in cause_keys),
+        ]  # fmt: skip
+        rows.append(row)
+
+        def f3(xs: Sequence[float]) -> str:
+            return " ".join(f"{x:.3f}" for x in xs)
+
+        md.append(
+            f"| {n_sub} | {lam:g} | {pt:g} | {r['density_veh_per_m']:g} | {r['analytical_cbr']:.3f} "
+            f"| {row[5]:.2f} | {row[6]:.2f} / {row[7]:.2f} | {row[8]:.2f} | {row[9]:.2f} "
+            f"| {f3(row[10:13])} | {f3(row[13:16])} | {f3([sh['simulator'][k] for k in cause_keys])} "
+            f"| {f3([sh['analytical'][k] for k in cause_keys])} | {f3([vsh[k] for k in cause_keys])} "
+            f"| {row[16]:.3f} |"
+        )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / "grid.csv", out_dir / "grid.md"]
+    _write_atomic(paths[0], _csv_bytes(header, rows))
+    _write_atomic(paths[1], ("\n".join(md) + "\n").encode())
     return paths
