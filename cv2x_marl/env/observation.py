@@ -48,6 +48,11 @@ then ``OWN_V3 = 6`` own values (:data:`OWN_V3_NAMES`): the utility per target re
 time left (steps left / the horizon in force: ``max_cycles`` or a shorter Gymnasium ``TimeLimit``) and
 the reach left (moving steps left x ``max_step_m`` / ``scale_m``). Every entry is refreshed every step.
 
+With ``drive`` (``cv2x/Traffic-v0``: the env option ``drive_observation``) ``OWN_DRIVE = 7`` driving
+entries (:data:`OWN_DRIVE_NAMES`) close the vector: the own speed / the speed limit, the heading (x, y: a
+unit vector along the own lane), the lane index / max(lanes per direction - 1, 1), 1 if a lane exists to
+the left / to the right, and the time left (steps left / the horizon in force).
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
@@ -86,6 +91,9 @@ FEATURES_V3 = 10
 OWN_V3_NAMES = ("utility", "utility_change_x10", "drift_x", "drift_y", "time_left", "reach")
 OWN_V3 = len(OWN_V3_NAMES)
 VERSIONS = (0, 1, 2, 3)
+#: the driving entries closing the observation with ``drive`` (module docstring)
+OWN_DRIVE_NAMES = ("speed", "heading_x", "heading_y", "lane", "lane_left", "lane_right", "time_left")
+OWN_DRIVE = len(OWN_DRIVE_NAMES)
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,7 @@ class ObservationLayout:
     obs_clip: float = 10.0
     version: int = 0
     privileged: bool = False
+    drive: bool = False
 
     @property
     def per_neighbour_extra(self) -> int:
@@ -125,7 +134,19 @@ class ObservationLayout:
     @property
     def size(self) -> int:
         own = {0: 0, 3: OWN_V3}.get(self.version, OWN_V1)
-        return self.own_v1_offset + own
+        return self.own_v1_offset + own + (OWN_DRIVE if self.drive else 0)
+
+    @property
+    def drive_offset(self) -> int:
+        """Index of the first :data:`OWN_DRIVE_NAMES` entry (``drive``)."""
+        if not self.drive:
+            raise ValueError("the driving entries are part of layouts with drive=True")
+        return self.size - OWN_DRIVE
+
+    def own_drive(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., OWN_DRIVE] the driving entries (:data:`OWN_DRIVE_NAMES`)."""
+        k = self.drive_offset
+        return obs[..., k : k + OWN_DRIVE]
 
     def measured(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., K, FEATURES_V3] view of the measured per-neighbour block (version 3)."""
