@@ -27,6 +27,7 @@ from cv2x_marl.env.observation import (
     build_observations,
     co_channel_table,
     decode_observations,
+    fill_drive,
     fill_measured,
     fill_own_v3,
 )
@@ -43,15 +44,15 @@ from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.mobility import VehicleState, headings
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.shadow_field import ShadowField
 
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
-#: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far)
-EPISODE_INFO_KEYS = ("utility_mean", "prr_mean")
-#: the infos' keys added by ``episode_metrics`` with ``drive_observation`` (the vehicle's speed and lane now)
-DRIVE_INFO_KEYS = ("speed_mps", "lane")
+#: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far), and with
+#: ``drive_observation`` (the vehicle's speed and lane now)
+EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean"), ("speed_mps", "lane")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -122,13 +123,8 @@ class MobilityEnv(ParallelEnv):
         rsrp_error_db: observation 3: standard deviation of the RSRP report error (dB).
         start_pool: ``reset()`` without a seed starts from one of the first ``start_pool`` seeds of the
             protocol's training list, their starts kept (:mod:`cv2x_marl.env.starts`); 0: fresh seeds.
-        accel_mps2, decel_mps2: ``traffic_action="speed"`` on the lane model: the bounds of a commanded
-            speed change (m/s^2; :func:`cv2x_marl.sim.mobility.drive`).
-        drive_observation: append the driving entries (own speed, heading, lane, time left;
-            :data:`~cv2x_marl.env.observation.OWN_DRIVE_NAMES`) to the observation (``traffic_action="speed"``
-            on the lane model).
-        episode_metrics: infos also carry the means of ``utility`` and ``prr`` over the episode's steps so far
-            (:data:`EPISODE_INFO_KEYS`; with ``drive_observation`` also :data:`DRIVE_INFO_KEYS`).
+        accel_mps2, decel_mps2, drive_observation, episode_metrics: ``cv2x/Traffic-v0``'s driving on the lane
+            model (:class:`~cv2x_marl.env.options.EnvOptions`; :data:`EPISODE_INFO_KEYS`, :data:`DRIVE_INFO_KEYS`).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -243,11 +239,9 @@ class MobilityEnv(ParallelEnv):
             scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged,
             drive_observation,
         )  # fmt: skip
-        #: the infos' keys (:data:`INFO_KEYS`, then :data:`EPISODE_INFO_KEYS` and :data:`DRIVE_INFO_KEYS`
-        #: with ``episode_metrics``)
-        self.info_keys = INFO_KEYS
-        if episode_metrics:
-            self.info_keys += EPISODE_INFO_KEYS + (DRIVE_INFO_KEYS if drive_observation else ())
+        #: the infos' keys (with ``episode_metrics`` also :data:`EPISODE_INFO_KEYS`, :data:`DRIVE_INFO_KEYS`)
+        self.info_keys: tuple[str, ...] = INFO_KEYS + (EPISODE_INFO_KEYS if episode_metrics else ())
+        self.info_keys += DRIVE_INFO_KEYS if episode_metrics and drive_observation else ()
         #: the lane model drives the movers (``traffic_action="speed"``, ``vehicles.mobility=model``)
         self.drives = mode == "traffic" and traffic_action == "speed" and cfg.vehicles.mobility == "model"
         self.model_name = model
@@ -499,25 +493,13 @@ class MobilityEnv(ParallelEnv):
         return obs[0], reward, done, info
 
     def speed_targets(self, act: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """``traffic_action="speed"``: the movers' actions [N, 2] as target speeds [N] (m/s; NaN: no command,
-        the vehicles that do not move and every vehicle in the settle phase) and lane commands [N] (+1 one
-        lane left, -1 right, 0 keep): ``action[0]`` in [-1, 1] maps linearly onto [0, speed limit],
-        ``action[1]`` > 0.5 / < -0.5 asks for a lane to the left / right (the action clipped to the box)."""
-        target = np.full(self.n, np.nan)
-        lanes = np.zeros(self.n, dtype=np.int64)
-        movers = self.mover_mask
-        if self.t < self.max_cycles - self.settle_steps:
-            a = np.minimum(np.maximum(act, -1.0), 1.0)
-            target[movers] = 0.5 * (a[movers, 0] + 1.0) * self.config.vehicles.speed_max_mps
-            lanes[movers] = np.where(a[movers, 1] > 0.5, 1, np.where(a[movers, 1] < -0.5, -1, 0))
-        return target, lanes
+        """Target speeds and lane commands [N] of actions [N, 2] (:func:`~cv2x_marl.env.step.speed_commands`)."""
+        active = self.t < self.max_cycles - self.settle_steps  # no command in the settle phase
+        return step_core.speed_commands(act, self.mover_mask, self.config.vehicles.speed_max_mps, active)
 
     def _command_drive(self, act: NDArray[np.float64]) -> None:
-        """``traffic_action="speed"`` on the lane model: the movers' speed and lane commands for this step's
-        period end (:meth:`Simulator.set_drive <cv2x_marl.sim.Simulator.set_drive>`)."""
-        target, lanes = self.speed_targets(act)
-        o = self.options
-        self.sim.set_drive(target, lanes, o.accel_mps2, o.decel_mps2)
+        """The lane model's speed and lane commands (:meth:`cv2x_marl.sim.Simulator.set_drive`)."""
+        self.sim.set_drive(*self.speed_targets(act), self.options.accel_mps2, self.options.decel_mps2)
 
     def _command_sumo(self, act: NDArray[np.float64]) -> None:
         """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands
@@ -673,27 +655,11 @@ class MobilityEnv(ParallelEnv):
         return dict(zip(self.agents, obs, strict=True))
 
     def _fill_drive(self, obs: NDArray[np.float32]) -> None:
-        """The driving entries of every vehicle (:data:`~cv2x_marl.env.observation.OWN_DRIVE_NAMES`) into ``obs`` [N, size]."""
-        from cv2x_marl.sim import mobility
-
-        st = self.sim.state
-        assert isinstance(st, mobility.VehicleState)
-        lanes = self.config.road.lanes_per_direction
-        heading = mobility.headings(st)
-        block = np.stack(
-            (
-                st.speed_mps / self.config.vehicles.speed_max_mps,
-                heading[:, 0],
-                heading[:, 1],
-                st.lane / max(lanes - 1, 1),
-                (st.lane > 0).astype(np.float64),
-                (st.lane < lanes - 1).astype(np.float64),
-                np.full(self.n, max(self.horizon - self.t, 0) / self.horizon),
-            ),
-            axis=1,
-        )
-        k = self.layout.drive_offset
-        obs[:, k:] = np.clip(block, -self.layout.obs_clip, self.layout.obs_clip)
+        """The driving entries of every vehicle into ``obs`` [N, size] (:func:`~.observation.fill_drive`)."""
+        st, lanes, limit = self.sim.state, self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
+        assert isinstance(st, VehicleState)
+        left = max(self.horizon - self.t, 0) / self.horizon
+        fill_drive(obs, self.layout, st.speed_mps / limit, headings(st), st.lane, lanes, left)
 
     def _fill_v3(self, obs: NDArray[np.float32], rows: NDArray[np.int64]) -> None:
         """Observation version 3's measured and own entries of agents ``rows`` (into ``obs`` [A, size])."""
@@ -718,7 +684,9 @@ class MobilityEnv(ParallelEnv):
             steps = max(self.t, 1)
             cols += [self._u_sum / steps, self._prr_sum / steps] if self.t else [self.utility, self.prr]
             if self.layout.drive:
-                cols += [self.sim.state.speed_mps, self.sim.state.lane]
+                st = self.sim.state
+                assert isinstance(st, VehicleState)
+                cols += [st.speed_mps, st.lane]
         table = np.stack(cols, axis=1).tolist()
         keys = self.info_keys
         return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}

@@ -535,3 +535,37 @@ def _own_v3_kernel(
         )
         for f in range(OWN_V3):
             obs[r, offset + f] = min(max(vals[f], -obs_clip), obs_clip)
+
+
+def fill_drive(
+    obs: NDArray[np.float32],
+    layout: ObservationLayout,
+    speed_share: FloatArray,
+    heading: FloatArray,
+    lane: NDArray[np.int64],
+    lanes_per_direction: int,
+    time_left: float,
+) -> None:
+    """The driving entries (:data:`OWN_DRIVE_NAMES`) of every vehicle into ``obs`` [N, layout.size].
+
+    Args:
+        speed_share: [N] speed / the speed limit.
+        heading: [N, 2] unit vectors of the direction of travel.
+        lane: [N] lane indices (0: next to the centre line).
+        lanes_per_direction: lanes of each direction of a road.
+        time_left: steps left / the horizon in force.
+    """
+    top = lanes_per_direction - 1
+    block = np.stack(
+        (
+            speed_share,
+            heading[:, 0],
+            heading[:, 1],
+            lane / max(top, 1),
+            (lane > 0).astype(np.float64),
+            (lane < top).astype(np.float64),
+            np.full(lane.shape[0], time_left),
+        ),
+        axis=1,
+    )
+    obs[:, layout.drive_offset :] = np.clip(block, -layout.obs_clip, layout.obs_clip)

@@ -96,7 +96,7 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
             return traffic.RoadGbmuPolicy(env, gbmu)
         if spec == "sensing":
             return traffic.RoadSensingPolicy(env)
-        return traffic.TrafficOptimumPolicy(env)
+        return traffic.TrafficOptimumPolicy(env, make_policy)
     if spec == "static":
         return StaticPolicy()
     if spec == "random":

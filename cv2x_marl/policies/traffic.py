@@ -19,7 +19,9 @@ the env is deterministic given its episode seed and the actions, so a copy repla
 from __future__ import annotations
 
 import copy
+import functools
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -125,19 +127,22 @@ def _mover(env: MobilityEnv) -> int:
     return int(movers[0])
 
 
-def rollout(start: MobilityEnv, method: str | None = None, actions: NDArray[np.float32] | None = None) -> Rollout:
-    """Run the episode of ``start`` (an env just reset, left untouched: a copy is stepped) with the scripted
-    ``method`` (:func:`~cv2x_marl.policies.registry.make_policy` on the copy, reset with the episode seed, as
-    `cv2x-marl evaluate` runs it) or the mover's action sequence ``actions`` [T, 2]; the other vehicles'
-    actions are zero (they do not move)."""
-    from cv2x_marl.policies.registry import make_policy
+#: builds a policy for an env (:func:`cv2x_marl.policies.registry.make_policy` with a name)
+PolicyFactory = Callable[["MobilityEnv"], Policy]
 
+
+def rollout(
+    start: MobilityEnv, make: PolicyFactory | None = None, actions: NDArray[np.float32] | None = None
+) -> Rollout:
+    """Run the episode of ``start`` (an env just reset, left untouched: a copy is stepped) with the policy
+    ``make`` builds on the copy (reset with the episode seed, as `cv2x-marl evaluate` runs it) or the
+    mover's action sequence ``actions`` [T, 2]; the other vehicles' actions are zero (they do not move)."""
     if start.t != 0:
         raise ValueError("rollout needs an env at the start of its episode (just reset)")
-    if (method is None) == (actions is None):
-        raise ValueError("rollout takes a method or an action sequence")
+    if (make is None) == (actions is None):
+        raise ValueError("rollout takes a policy factory or an action sequence")
     env = copy.deepcopy(start)
-    policy = None if method is None else make_policy(method, env)
+    policy = None if make is None else make(env)
     i = _mover(env)
     name = env.possible_agents[i]
     zero = np.zeros(2, dtype=np.float32)
@@ -159,10 +164,10 @@ def rollout(start: MobilityEnv, method: str | None = None, actions: NDArray[np.f
     return Rollout(np.array(taken, dtype=np.float32), float(env._u_sum[i] / t), float(env._prr_sum[i] / t))
 
 
-def reference_means(env: MobilityEnv) -> tuple[float, float]:
-    """The episode-mean utility and PRR of ``static`` (:func:`make_policy`'s, on this env) on the episode
-    ``env`` has just started: the baseline of the traffic task's utility gain (docs/benchmark.md)."""
-    r = rollout(env, "static")
+def reference_means(env: MobilityEnv, static: PolicyFactory) -> tuple[float, float]:
+    """The episode-mean utility and PRR of ``static`` (the factory of ``--policy static`` on this env) on the
+    episode ``env`` has just started: the baseline of the traffic task's utility gain (docs/benchmark.md)."""
+    r = rollout(env, static)
     return r.utility_mean, r.prr_mean
 
 
@@ -208,6 +213,8 @@ class SearchResult:
     scripted: dict[str, float]  # each seeded method's episode-mean utility
 
 
+#: the search of :func:`traffic_search` and ``--policy optimum`` when none is given
+DEFAULT_SEARCH = SearchSettings()
 #: kept searches per process (evaluate's --vs-optimum and the optimum policy share one search per episode)
 _CACHE: OrderedDict[tuple[Any, ...], SearchResult] = OrderedDict()
 _CACHE_SIZE = 64
@@ -226,10 +233,13 @@ def profile_actions(speeds: FloatArray, lanes: NDArray[np.int64], steps: int) ->
     return out
 
 
-def traffic_search(env: MobilityEnv, settings: SearchSettings | None = None) -> SearchResult:
+def traffic_search(
+    env: MobilityEnv, make: Callable[[str, MobilityEnv], Policy], settings: SearchSettings | None = None
+) -> SearchResult:
     """The ceiling of ``cv2x/Traffic-v0`` on the episode ``env`` has just started: the best found
     episode-mean utility of its mover over its action sequences (privileged: every candidate is replayed
     in a copy of the env, so the search sees the other vehicles' future, their turns and every SPS draw).
+    ``make(name, env)`` builds the seeded methods (:func:`cv2x_marl.policies.registry.make_policy`).
 
     Candidates: the seeded methods' own sequences (:attr:`SearchSettings.seeded`), then cross-entropy
     iterations over piecewise-constant profiles (per segment ``action[0]`` Gaussian, started at the
@@ -238,7 +248,7 @@ def traffic_search(env: MobilityEnv, settings: SearchSettings | None = None) -> 
     The result is the best found, not a proof of optimality; it is at least as good as every seeded
     method on the episode by construction.
     """
-    settings = settings or SearchSettings()
+    settings = settings or DEFAULT_SEARCH
     i = _mover(env)
     key = (repr(env.options), env.seed_used, settings)
     if key in _CACHE:
@@ -250,7 +260,7 @@ def traffic_search(env: MobilityEnv, settings: SearchSettings | None = None) -> 
     scripted: dict[str, float] = {}
     evaluated = 0
     for name in settings.seeded:
-        r = rollout(env, name)
+        r = rollout(env, functools.partial(make, name))
         scripted[name] = r.utility_mean
         evaluated += 1
         if best is None or r.utility_mean > best.utility_mean:
@@ -297,15 +307,18 @@ class TrafficOptimumPolicy:
 
     name = "optimum"
 
-    def __init__(self, env: MobilityEnv, settings: SearchSettings | None = None) -> None:
+    def __init__(
+        self, env: MobilityEnv, make: Callable[[str, MobilityEnv], Policy], settings: SearchSettings | None = None
+    ) -> None:
         check_drive_env(env, self.name)
         _mover(env)
         self.env = env
-        self.settings = settings or SearchSettings()
+        self.make = make
+        self.settings = settings or DEFAULT_SEARCH
         self.result: SearchResult | None = None
 
     def reset(self, seed: int | None = None) -> None:
-        self.result = traffic_search(self.env, self.settings)
+        self.result = traffic_search(self.env, self.make, self.settings)
 
     def ceiling_utilities(self) -> FloatArray:
         """[N] the search's episode-mean utility at the mover's index (NaN elsewhere): the ceiling."""
