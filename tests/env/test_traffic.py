@@ -156,3 +156,17 @@ def test_ceiling_at_least_every_scripted_method_and_evaluate_scores(monkeypatch:
             assert r["utility_gain"] == pytest.approx((r["utility_end"] - r["utility_start"]) / abs(r["utility_start"]))
     assert all(r["utility_gain"] == 0.0 for r in out["static"])
     assert [r["utility_end"] for r in out["optimum"]] == [r["utility_optimum"] for r in out["optimum"]]
+
+
+def test_parallel_variant_every_vehicle_drives() -> None:
+    """``parallel_env(**TRAFFIC_DEFAULTS)``: the PettingZoo variant, every vehicle commands its own speed."""
+    from cv2x_marl.env import parallel_env
+    from cv2x_marl.env.options import TRAFFIC_DEFAULTS
+
+    env = parallel_env(**TRAFFIC_DEFAULTS, max_cycles=3)
+    env.reset(seed=2)
+    v0 = env.sim.state.speed_mps.copy()
+    goals = np.linspace(-1.0, 1.0, env.n)
+    env.step({a: np.array([g, 0.0], np.float32) for a, g in zip(env.agents, goals, strict=True)})
+    target = 0.5 * (goals.astype(np.float32).astype(np.float64) + 1.0) * LIMIT
+    np.testing.assert_allclose(env.sim.state.speed_mps, np.clip(target, v0 - 0.34, v0 + 0.26), atol=1e-12)
