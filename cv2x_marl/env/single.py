@@ -27,10 +27,13 @@ class SingleMoverEnv(gym.Env):
     version = 0
     #: the key of the id's defaults in :data:`VERSION_DEFAULTS` (None: ``v{version}``)
     defaults: str | None = None
+    #: the id's name in messages (None: ``SingleMover-v{version}``)
+    label: str | None = None
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         if "movers" in kwargs:
-            raise ValueError(f"invalid env argument movers: {type(self).__name__} always moves vehicle 0")
+            label = self.label or f"SingleMover-v{self.version}"
+            raise ValueError(f"invalid env argument movers: {label} always moves vehicle 0")
         kwargs = {**VERSION_DEFAULTS[self.defaults or f"v{self.version}"], **kwargs}
         self.par = MobilityEnv(movers=[0], render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
@@ -127,3 +130,4 @@ class TrafficEnv(SingleMoverEnv):
     means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``)."""
 
     defaults = "traffic-v0"
+    label = "Traffic-v0"

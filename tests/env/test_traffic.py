@@ -121,6 +121,8 @@ def test_policies_without_a_road_version_are_refused() -> None:
         ev.evaluate("cv2x/Traffic-v0", "planner", 1, 0, progress=False)
     assert isinstance(make_policy("static", env), traffic.HoldSpeedPolicy)
     assert isinstance(make_policy("gbmu", env), traffic.RoadGbmuPolicy)
+    with pytest.raises(ValueError, match="invalid env argument movers: Traffic-v0 always moves vehicle 0"):
+        gym.make("cv2x/Traffic-v0", movers=[1])
     with pytest.raises(ValueError, match="invalid env argument drive_observation=True"):
         make_parallel_env("cv2x/SingleMover-v3", drive_observation=True)
 
