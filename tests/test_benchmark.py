@@ -86,7 +86,11 @@ def test_task_table_entries() -> None:
     for t in (sm, co):
         assert t.available == (t.env_id in ENV_IDS)
         assert dict(t.options) == {"preset": "paper", "max_cycles": 100, "max_step_m": 5.0}
-    assert "traffic" not in tasks.TASKS and "traffic" in tasks.PENDING_TASKS
+    tr = tasks.TASKS["traffic"]
+    assert tr.env_id == tasks.TASK_ENV_IDS["traffic"] == "cv2x/Traffic-v0" and tr.available
+    assert tr.methods == ("static", "random", "gbmu", "sensing") and tr.ceiling == "optimum"
+    assert dict(tr.options) == {"preset": "paper", "max_cycles": 100, "max_step_m": 5.0}
+    assert not tasks.PENDING_TASKS
 
 
 def test_a_refused_policy_names_itself_the_task_and_the_allowed_ones() -> None:
@@ -96,9 +100,9 @@ def test_a_refused_policy_names_itself_the_task_and_the_allowed_ones() -> None:
     assert "'best-response'" in msg and "singlemover" in msg and "cv2x/SingleMover-v3" in msg
     assert "allowed: static, random, gbmu, sensing, optimum, ppo:PATH" in msg
     tasks.TASKS["cooperative"].check_policy("best-response")  # accepted there
-    with pytest.raises(ValueError, match="task 'traffic' is not available: cv2x/Traffic-v0"):
-        tasks.get_task("traffic")
-    with pytest.raises(ValueError, match="unknown task 'nope'; tasks: singlemover, cooperative"):
+    with pytest.raises(ValueError, match="policy 'planner' cannot run on task traffic"):
+        tasks.TASKS["traffic"].check_policy("planner")
+    with pytest.raises(ValueError, match="unknown task 'nope'; tasks: singlemover, cooperative, traffic"):
         tasks.get_task("nope")
 
 
@@ -215,7 +219,7 @@ def test_benchmark_table_equals_a_recomputation_and_evaluate(tmp_path: Path, mon
         raise AssertionError("one worker runs without Ray")
 
     monkeypatch.setattr(cv2x_marl.parallel, "ray_session", no_ray)
-    table = stand_in_tasks()
+    table = {n: t for n, t in stand_in_tasks().items() if n != "traffic"}  # traffic: tests/env/test_traffic.py
     out = tmp_path / "bench"
     summary = benchmark.run_benchmark(out, methods=["static", "gbmu"], episodes=2, progress=False, task_table=table)
     assert {p.name for p in out.iterdir()} >= {"benchmark.csv", "summary.json", "table.md", "benchmark.png"}
@@ -317,7 +321,7 @@ def test_benchmark_refusals_leave_no_folder(tmp_path: Path) -> None:
     table = stand_in_tasks()
     cases = [
         ({"task_table": None}, "not available in this version"),  # the new ids, before they are registered
-        ({"tasks": ["traffic"]}, "task 'traffic' is not available: cv2x/Traffic-v0"),
+        ({"tasks": ["traffic"], "methods": ["greedy"]}, "policy 'greedy' cannot run on task traffic"),
         ({"methods": ["oracle"]}, "--methods oracle: not a method of task singlemover"),
         ({"tasks": ["singlemover"], "methods": ["best-response"]}, "policy 'best-response' cannot run on task"),
         ({"models": ["singlemover=gbmu"]}, "--model expects TASK=ppo:PATH"),

@@ -102,7 +102,7 @@ def test_evaluate_seeds_report_iqm_and_intervals(tmp_path: Path, capsys: pytest.
         (["evaluate", "--env-option", "max_step_m=2"], "--env-option max_step_m: set it with --max-step"),
         (["evaluate", "--seeds", "heldout", "--env", "cv2x/SingleMover-v1"], "is no task's env"),
         (["evaluate", "--policy", "gbmu", "--policy", "static"], "several policies are the training runs"),
-        (["benchmark", "--out", "x", "--tasks", "traffic"], "task 'traffic' is not available: cv2x/Traffic-v0"),
+        (["benchmark", "--out", "x", "--tasks", "traffic", "--methods", "planner"], "cannot run on task traffic"),
         (["benchmark", "--out", "x", "--model", "singlemover=gbmu"], "--model expects TASK=ppo:PATH"),
     ],
 )

@@ -27,6 +27,7 @@ from cv2x_marl.env.observation import (
     build_observations,
     co_channel_table,
     decode_observations,
+    fill_drive,
     fill_measured,
     fill_own_v3,
 )
@@ -43,11 +44,15 @@ from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.mobility import VehicleState, headings
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.shadow_field import ShadowField
 
 #: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
+#: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far), and with
+#: ``drive_observation`` (the vehicle's speed and lane now)
+EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean"), ("speed_mps", "lane")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -118,6 +123,8 @@ class MobilityEnv(ParallelEnv):
         rsrp_error_db: observation 3: standard deviation of the RSRP report error (dB).
         start_pool: ``reset()`` without a seed starts from one of the first ``start_pool`` seeds of the
             protocol's training list, their starts kept (:mod:`cv2x_marl.env.starts`); 0: fresh seeds.
+        accel_mps2, decel_mps2, drive_observation, episode_metrics: ``cv2x/Traffic-v0``'s driving on the lane
+            model (:class:`~cv2x_marl.env.options.EnvOptions`; :data:`EPISODE_INFO_KEYS`, :data:`DRIVE_INFO_KEYS`).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -160,6 +167,10 @@ class MobilityEnv(ParallelEnv):
         sensing_window: int = 10,
         rsrp_error_db: float = 3.0,
         start_pool: int = 0,
+        accel_mps2: float = 2.6,
+        decel_mps2: float = 3.4,
+        drive_observation: bool = False,
+        episode_metrics: bool = False,
     ) -> None:
         opts = EnvOptions(
             preset=preset, overrides=overrides, config=config, mode=mode, max_cycles=max_cycles,
@@ -169,7 +180,8 @@ class MobilityEnv(ParallelEnv):
             privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
             action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
             team_objective=team_objective, shadow_field=shadow_field, sensing_window=sensing_window,
-            rsrp_error_db=rsrp_error_db, start_pool=start_pool,
+            rsrp_error_db=rsrp_error_db, start_pool=start_pool, accel_mps2=accel_mps2, decel_mps2=decel_mps2,
+            drive_observation=drive_observation, episode_metrics=episode_metrics,
         )  # fmt: skip
         cfg = opts.scenario()
         road = Road.from_config(cfg.road)
@@ -225,7 +237,13 @@ class MobilityEnv(ParallelEnv):
         self.layout = ObservationLayout(
             self.n - 1 if n_neighbours is None else n_neighbours,
             scale_m, float(max(box)), cfg.metrics.interferer_range_m, 10.0, observation, privileged,
+            drive_observation,
         )  # fmt: skip
+        #: the infos' keys (with ``episode_metrics`` also :data:`EPISODE_INFO_KEYS`, :data:`DRIVE_INFO_KEYS`)
+        self.info_keys: tuple[str, ...] = INFO_KEYS + (EPISODE_INFO_KEYS if episode_metrics else ())
+        self.info_keys += DRIVE_INFO_KEYS if episode_metrics and drive_observation else ()
+        #: the lane model drives the movers (``traffic_action="speed"``, ``vehicles.mobility=model``)
+        self.drives = mode == "traffic" and traffic_action == "speed" and cfg.vehicles.mobility == "model"
         self.model_name = model
         self.model: Any = None
         if observation in (1, 2):
@@ -306,6 +324,8 @@ class MobilityEnv(ParallelEnv):
         self._summarise()
         self.u0 = self.utility.copy()
         self.prr0 = self.prr.copy()
+        self._u_sum = np.zeros(self.n)  # sums over the episode's steps (episode_metrics)
+        self._prr_sum = np.zeros(self.n)
         self._base_prev = self._rewards(self.utility).copy()
         if self.layout.version >= 1:
             self._reset_v1_state(None if cached is None else cached.plan_m)
@@ -333,7 +353,10 @@ class MobilityEnv(ParallelEnv):
             )  # fmt: skip
         elif self.traffic_action == "speed":
             clipped = np.asarray(((act < -1.0) | (act > 1.0)).any(axis=1))
-            self._command_sumo(act)
+            if self.drives:
+                self._command_drive(act)
+            else:
+                self._command_sumo(act)
             applied = np.zeros((self.n, 2))
             self.sim.run(self.sim.rri, record=False)
             self.resource = self.sim.resource.copy()
@@ -350,6 +373,8 @@ class MobilityEnv(ParallelEnv):
         self.tracks.append(self.positions_m.copy())
         self.link_p, self.target = self._link_success()
         self._summarise()
+        self._u_sum += self.utility
+        self._prr_sum += self.prr
         if self.layout.version == 3:  # one more period of sensing at the new positions
             self.measure.update(self._rx_dbm, self.link_p)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
@@ -467,20 +492,23 @@ class MobilityEnv(ParallelEnv):
             self._live = set()
         return obs[0], reward, done, info
 
+    def speed_targets(self, act: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Target speeds and lane commands [N] of actions [N, 2] (:func:`~cv2x_marl.env.step.speed_commands`)."""
+        active = self.t < self.max_cycles - self.settle_steps  # no command in the settle phase
+        return step_core.speed_commands(act, self.mover_mask, self.config.vehicles.speed_max_mps, active)
+
+    def _command_drive(self, act: NDArray[np.float64]) -> None:
+        """The lane model's speed and lane commands (:meth:`cv2x_marl.sim.Simulator.set_drive`)."""
+        self.sim.set_drive(*self.speed_targets(act), self.options.accel_mps2, self.options.decel_mps2)
+
     def _command_sumo(self, act: NDArray[np.float64]) -> None:
         """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands
         (the settle phase hands the movers back to SUMO's driver)."""
         from cv2x_marl.sim import sumo
 
-        target = np.full(self.n, np.nan)  # NaN: no command (the vehicles that do not move)
-        lanes = np.zeros(self.n, dtype=np.int64)
-        movers = self.mover_mask
+        target, lanes = self.speed_targets(act)  # NaN: no command (the vehicles that do not move)
         if self.t >= self.max_cycles - self.settle_steps:
-            target[movers] = -1.0  # SUMO's own driver again
-        else:
-            a = np.minimum(np.maximum(act, -1.0), 1.0)
-            target[movers] = 0.5 * (a[movers, 0] + 1.0) * self.config.vehicles.speed_max_mps
-            lanes[movers] = np.where(a[movers, 1] > 0.5, 1, np.where(a[movers, 1] < -0.5, -1, 0))
+            target[self.mover_mask] = -1.0  # SUMO's own driver again
         sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0)
 
     # ------------------------------------------------------------------ pieces
@@ -615,6 +643,8 @@ class MobilityEnv(ParallelEnv):
 
     def _observations(self) -> dict[str, NDArray[np.float32]]:
         obs = self._build()
+        if self.layout.drive:
+            self._fill_drive(obs)
         if self.layout.version == 3:
             self._fill_v3(obs, np.arange(self.n, dtype=np.int64))
         elif self.layout.version >= 1:
@@ -623,6 +653,13 @@ class MobilityEnv(ParallelEnv):
                 self._u_now, self._u_prev, self._u_start, self._u_best, self._best_m, self.plan_m, self.positions_m,
             )  # fmt: skip
         return dict(zip(self.agents, obs, strict=True))
+
+    def _fill_drive(self, obs: NDArray[np.float32]) -> None:
+        """The driving entries of every vehicle into ``obs`` [N, size] (:func:`~.observation.fill_drive`)."""
+        st, lanes, limit = self.sim.state, self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
+        assert isinstance(st, VehicleState)
+        left = max(self.horizon - self.t, 0) / self.horizon
+        fill_drive(obs, self.layout, st.speed_mps / limit, headings(st), st.lane, lanes, left)
 
     def _fill_v3(self, obs: NDArray[np.float32], rows: NDArray[np.int64]) -> None:
         """Observation version 3's measured and own entries of agents ``rows`` (into ``obs`` [A, size])."""
@@ -642,10 +679,16 @@ class MobilityEnv(ParallelEnv):
 
     def _infos(self, applied: NDArray[np.float64], clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
         """Numeric infos of every agent (all agents are live whenever infos are built)."""
-        table = np.stack(
-            (self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped), axis=1
-        ).tolist()
-        keys = INFO_KEYS
+        cols = [self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped]
+        if self.options.episode_metrics:  # the means over the steps so far (at reset: the start's)
+            steps = max(self.t, 1)
+            cols += [self._u_sum / steps, self._prr_sum / steps] if self.t else [self.utility, self.prr]
+            if self.layout.drive:
+                st = self.sim.state
+                assert isinstance(st, VehicleState)
+                cols += [st.speed_mps, st.lane]
+        table = np.stack(cols, axis=1).tolist()
+        keys = self.info_keys
         return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}
 
     # ----------------------------------------------------------- state / draw

@@ -48,6 +48,11 @@ then ``OWN_V3 = 6`` own values (:data:`OWN_V3_NAMES`): the utility per target re
 time left (steps left / the horizon in force: ``max_cycles`` or a shorter Gymnasium ``TimeLimit``) and
 the reach left (moving steps left x ``max_step_m`` / ``scale_m``). Every entry is refreshed every step.
 
+With ``drive`` (``cv2x/Traffic-v0``: the env option ``drive_observation``) ``OWN_DRIVE = 7`` driving
+entries (:data:`OWN_DRIVE_NAMES`) close the vector: the own speed / the speed limit, the heading (x, y: a
+unit vector along the own lane), the lane index / max(lanes per direction - 1, 1), 1 if a lane exists to
+the left / to the right, and the time left (steps left / the horizon in force).
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
@@ -86,6 +91,9 @@ FEATURES_V3 = 10
 OWN_V3_NAMES = ("utility", "utility_change_x10", "drift_x", "drift_y", "time_left", "reach")
 OWN_V3 = len(OWN_V3_NAMES)
 VERSIONS = (0, 1, 2, 3)
+#: the driving entries closing the observation with ``drive`` (module docstring)
+OWN_DRIVE_NAMES = ("speed", "heading_x", "heading_y", "lane", "lane_left", "lane_right", "time_left")
+OWN_DRIVE = len(OWN_DRIVE_NAMES)
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,7 @@ class ObservationLayout:
     obs_clip: float = 10.0
     version: int = 0
     privileged: bool = False
+    drive: bool = False
 
     @property
     def per_neighbour_extra(self) -> int:
@@ -125,7 +134,19 @@ class ObservationLayout:
     @property
     def size(self) -> int:
         own = {0: 0, 3: OWN_V3}.get(self.version, OWN_V1)
-        return self.own_v1_offset + own
+        return self.own_v1_offset + own + (OWN_DRIVE if self.drive else 0)
+
+    @property
+    def drive_offset(self) -> int:
+        """Index of the first :data:`OWN_DRIVE_NAMES` entry (``drive``)."""
+        if not self.drive:
+            raise ValueError("the driving entries are part of layouts with drive=True")
+        return self.size - OWN_DRIVE
+
+    def own_drive(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., OWN_DRIVE] the driving entries (:data:`OWN_DRIVE_NAMES`)."""
+        k = self.drive_offset
+        return obs[..., k : k + OWN_DRIVE]
 
     def measured(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., K, FEATURES_V3] view of the measured per-neighbour block (version 3)."""
@@ -514,3 +535,37 @@ def _own_v3_kernel(
         )
         for f in range(OWN_V3):
             obs[r, offset + f] = min(max(vals[f], -obs_clip), obs_clip)
+
+
+def fill_drive(
+    obs: NDArray[np.float32],
+    layout: ObservationLayout,
+    speed_share: FloatArray,
+    heading: FloatArray,
+    lane: NDArray[np.int64],
+    lanes_per_direction: int,
+    time_left: float,
+) -> None:
+    """The driving entries (:data:`OWN_DRIVE_NAMES`) of every vehicle into ``obs`` [N, layout.size].
+
+    Args:
+        speed_share: [N] speed / the speed limit.
+        heading: [N, 2] unit vectors of the direction of travel.
+        lane: [N] lane indices (0: next to the centre line).
+        lanes_per_direction: lanes of each direction of a road.
+        time_left: steps left / the horizon in force.
+    """
+    top = lanes_per_direction - 1
+    block = np.stack(
+        (
+            speed_share,
+            heading[:, 0],
+            heading[:, 1],
+            lane / max(top, 1),
+            (lane > 0).astype(np.float64),
+            (lane < top).astype(np.float64),
+            np.full(lane.shape[0], time_left),
+        ),
+        axis=1,
+    )
+    obs[:, layout.drive_offset :] = np.clip(block, -layout.obs_clip, layout.obs_clip)

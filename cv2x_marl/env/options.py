@@ -68,14 +68,32 @@ V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
 V3_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 3, "shadow_field": True}
 #: ``cv2x/Cooperative-v0``: v3 with every vehicle moving for the team objective
 COOPERATIVE_DEFAULTS: dict[str, Any] = {**V3_DEFAULTS, "reward": "team"}
-#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``)
+#: ``cv2x/Traffic-v0``: vehicles drive the lane model, the mover commands its speed and lane, the reward is the
+#: period's utility per target receiver, the observation is v0's block plus the driving entries, and the infos
+#: carry the episode's means
+TRAFFIC_DEFAULTS: dict[str, Any] = {
+    "mode": "traffic",
+    "traffic_action": "speed",
+    "normalise_reward": True,
+    "drive_observation": True,
+    "episode_metrics": True,
+}
+#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``;
+#: ``traffic-v0``: ``cv2x/Traffic-v0``)
 VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
     "v0": {},
     "v1": V1_DEFAULTS,
     "v2": V2_DEFAULTS,
     "v3": V3_DEFAULTS,
     "cooperative-v0": COOPERATIVE_DEFAULTS,
+    "traffic-v0": TRAFFIC_DEFAULTS,
 }
+#: the bound of a commanded speed increase (m/s^2): SUMO's default ``accel`` of a passenger car (2.6 m/s^2,
+#: sumo.dlr.de "Vehicle Type Parameter Defaults"), within the 2-3 m/s^2 of comfortable acceleration
+ACCEL_MPS2 = 2.6
+#: the bound of a commanded speed decrease (m/s^2): the comfortable deceleration of AASHTO's Green Book
+#: (3.4 m/s^2, 11.2 ft/s^2, the stopping-sight-distance deceleration most drivers keep below)
+DECEL_MPS2 = 3.4
 
 
 def _option(default: Any, doc: str, unit: str = "", shown: str | None = None, **rules: Any) -> Any:
@@ -271,9 +289,11 @@ class EnvOptions:
     traffic_action: str = _option(
         "offset",
         "traffic mode: `offset` moves the radio position off the road position (bounded by `max_drift_m`; the "
-        "traffic does not see it); `speed` (`vehicles.mobility=sumo`): `action[0]` sets a target speed from 0 "
-        "(-1) to `vehicles.speed_max_mps` (+1) and `action[1]` > 0.5 / < -0.5 asks for one lane left / right, "
-        "commands SUMO honours within its acceleration limits and car-following safety (`docs/mobility.md`)",
+        "traffic does not see it); `speed`: `action[0]` sets a target speed from 0 (-1) to "
+        "`vehicles.speed_max_mps` (+1) and `action[1]` > 0.5 / < -0.5 asks for one lane left / right: with "
+        "`vehicles.mobility=sumo` commands SUMO honours within its acceleration limits and car-following safety "
+        "(`docs/mobility.md`), on the lane model (`model`) reached within `accel_mps2` / `decel_mps2`, a lane "
+        "that does not exist ignored (`cv2x_marl.sim.mobility.drive`)",
         choices=TRAFFIC_ACTIONS,
     )
     team_objective: str = _option(
@@ -302,6 +322,33 @@ class EnvOptions:
         "RSRP accuracy of TS 36.133 clause 9.1.2.1 read as a 95 % bound: 6 / 2)",
         "dB",
         lo=0.0,
+    )
+
+    accel_mps2: float = _option(
+        ACCEL_MPS2,
+        "`traffic_action=speed` on the lane model (`vehicles.mobility=model`): the most a commanded speed rises "
+        "per second (SUMO's default passenger-car `accel`)",
+        "m/s^2",
+        lo=0.0,
+        lo_open=True,
+    )
+    decel_mps2: float = _option(
+        DECEL_MPS2,
+        "`traffic_action=speed` on the lane model: the most a commanded speed falls per second (AASHTO's "
+        "comfortable deceleration)",
+        "m/s^2",
+        lo=0.0,
+        lo_open=True,
+    )
+    drive_observation: bool = _option(
+        False,
+        "`traffic_action=speed` on the lane model: append the driving entries to the observation (own speed / "
+        "limit, heading, lane, lanes left / right, time left; `cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
+    )
+    episode_metrics: bool = _option(
+        False,
+        "infos also carry `utility_mean` and `prr_mean`, the means of `utility` and `prr` over the episode's steps "
+        "so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
     )
 
     start_pool: int = _option(
@@ -376,6 +423,10 @@ class EnvOptions:
             refuse("reset_cache", self.reset_cache, "0 unless mode is snapshot")
         if self.start_pool and self.mode != "snapshot":
             refuse("start_pool", self.start_pool, "0 unless mode is snapshot")
+        if self.drive_observation and (self.mode != "traffic" or self.traffic_action != "speed"):
+            refuse(
+                "drive_observation", self.drive_observation, "false unless mode is traffic with traffic_action speed"
+            )
 
     def scenario(self) -> ScenarioConfig:
         """The scenario: :attr:`config`, else :attr:`preset` with :attr:`overrides`."""
@@ -416,12 +467,16 @@ class EnvOptions:
                 f"finite number > 0 and <= {scene_diagonal_m:.1f} (the diagonal of the scene, road box "
                 f"{box_m[0]:g} m x {box_m[1]:g} m: a larger step leaves it)",
             )
-        if self.traffic_action == "speed" and (self.mode != "traffic" or cfg.vehicles.mobility != "sumo"):
+        if self.traffic_action == "speed" and (
+            self.mode != "traffic" or cfg.vehicles.mobility not in ("sumo", "model")
+        ):
             refuse(
                 "traffic_action",
                 self.traffic_action,
-                " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=sumo)",
+                " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=model or sumo)",
             )
+        if self.drive_observation and cfg.vehicles.mobility != "model":
+            refuse("drive_observation", self.drive_observation, "false unless vehicles.mobility is model")
 
 
 def options_markdown() -> str:

@@ -7,6 +7,8 @@ Two families of four versions each, and the cooperative task (the defaults of ea
     cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:mod:`cv2x_marl.env.single`); vectorised
                           by :mod:`cv2x_marl.env.vector` (``gymnasium.make_vec(..., "vector_entry_point")``)
     cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
+    cv2x/Traffic-v0       Gymnasium, vehicles drive (lane model), vehicle 0 commands its speed and lane
+                          (:class:`~cv2x_marl.env.single.TrafficEnv`)
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
@@ -43,8 +45,14 @@ MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
 SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
 #: the cooperative task (PettingZoo; every vehicle moves, team reward)
 COOPERATIVE_IDS = ("cv2x/Cooperative-v0",)
+#: the traffic task (Gymnasium; vehicle 0 drives with speed and lane commands)
+TRAFFIC_IDS = ("cv2x/Traffic-v0",)
 #: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
-ENV_IDS = (*(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair), *COOPERATIVE_IDS)
+ENV_IDS = (
+    *(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair),
+    *COOPERATIVE_IDS,
+    *TRAFFIC_IDS,
+)
 #: the id commands run when none is given
 DEFAULT_ENV_ID = "cv2x/SingleMover-v2"
 #: Gymnasium classes per version: (entry point in :mod:`cv2x_marl.env.single`, vector entry point
@@ -64,11 +72,14 @@ _PETTINGZOO_SUFFIX = {
 
 def env_version(env_id: str) -> str:
     """The key of a registered id's defaults in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (``v0`` ..
-    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``); unknown ids are refused with the list."""
+    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``, ``traffic-v0`` for ``cv2x/Traffic-v0``); unknown
+    ids are refused with the list."""
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
     if env_id in COOPERATIVE_IDS:
         return "cooperative-" + env_id.rsplit("-", 1)[1]
+    if env_id in TRAFFIC_IDS:
+        return "traffic-" + env_id.rsplit("-", 1)[1]
     return env_id.rsplit("-", 1)[1]
 
 
@@ -79,7 +90,7 @@ def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     from cv2x_marl.env.options import VERSION_DEFAULTS
 
     version = env_version(env_id)
-    if env_id in SINGLE_MOVER_IDS:
+    if env_id in SINGLE_MOVER_IDS or env_id in TRAFFIC_IDS:
         kwargs = {**kwargs, "movers": [0]}
     return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs})
 
@@ -178,6 +189,9 @@ def _register_gymnasium() -> None:
                 entry_point=f"cv2x_marl.env.single:{cls}",
                 vector_entry_point=f"cv2x_marl.env.vector:{vector_cls}",
             )
+    for env_id in TRAFFIC_IDS:
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point="cv2x_marl.env.single:TrafficEnv")
 
 
 def _register_pettingzoo() -> None:

@@ -25,11 +25,16 @@ class SingleMoverEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012 - Gymnasium declares it so
 
     version = 0
+    #: the key of the id's defaults in :data:`VERSION_DEFAULTS` (None: ``v{version}``)
+    defaults: str | None = None
+    #: the id's name in messages (None: ``SingleMover-v{version}``)
+    label: str | None = None
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         if "movers" in kwargs:
-            raise ValueError(f"invalid env argument movers: SingleMover-v{self.version} always moves vehicle 0")
-        kwargs = {**VERSION_DEFAULTS[f"v{self.version}"], **kwargs}
+            label = self.label or f"SingleMover-v{self.version}"
+            raise ValueError(f"invalid env argument movers: {label} always moves vehicle 0")
+        kwargs = {**VERSION_DEFAULTS[self.defaults or f"v{self.version}"], **kwargs}
         self.par = MobilityEnv(movers=[0], render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
         self.observation_space = self.par.observation_space(AGENT)
@@ -114,3 +119,15 @@ class SingleMoverEnvV3(SingleMoverEnv):
     left follows a shorter Gymnasium ``TimeLimit`` (``spec.max_episode_steps``) when one is in force."""
 
     version = 3
+
+
+class TrafficEnv(SingleMoverEnv):
+    """``cv2x/Traffic-v0``: vehicles drive the lane model and SPS runs one 100-ms period per step with live
+    reselections; vehicle 0 commands its speed (``action[0]``: a target in [0, the speed limit], reached
+    within ``accel_mps2`` / ``decel_mps2``) and its lane (``action[1]`` > 0.5 / < -0.5: one lane left /
+    right, where one exists); the reward is the period's eq. 12 utility of its actual transmissions per
+    target receiver; the observation is v0's block plus the driving entries; the infos carry the episode's
+    means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``)."""
+
+    defaults = "traffic-v0"
+    label = "Traffic-v0"

@@ -435,3 +435,21 @@ def record_mover_step(
     info[6] = y - y_old
     info[7] = 1.0 if clipped else 0.0
     return reward
+
+
+def speed_commands(
+    act: FloatArray, mover_mask: NDArray[np.bool_], limit_mps: float, active: bool
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """``traffic_action="speed"``: the movers' actions [N, 2] as target speeds [N] (m/s; NaN: no command,
+    the vehicles that do not move, and every vehicle when not ``active``: the settle phase) and lane
+    commands [N] (+1 one lane left, -1 right, 0 keep): ``action[0]`` in [-1, 1] maps linearly onto
+    [0, ``limit_mps``], ``action[1]`` > 0.5 / < -0.5 asks for a lane to the left / right (the action
+    clipped to the box first)."""
+    n = act.shape[0]
+    target = np.full(n, np.nan)
+    lanes = np.zeros(n, dtype=np.int64)
+    if active:
+        a = np.minimum(np.maximum(act, -1.0), 1.0)
+        target[mover_mask] = 0.5 * (a[mover_mask, 0] + 1.0) * limit_mps
+        lanes[mover_mask] = np.where(a[mover_mask, 1] > 0.5, 1, np.where(a[mover_mask, 1] < -0.5, -1, 0))
+    return target, lanes

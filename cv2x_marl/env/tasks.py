@@ -4,7 +4,7 @@ refuses.
 
     singlemover   cv2x/SingleMover-v3   one mover (Gymnasium), plan-free observation, shadowing that follows it
     cooperative   cv2x/Cooperative-v0   every vehicle moves (PettingZoo), reward = the team objective
-    traffic       cv2x/Traffic-v0       not built yet (:data:`PENDING_TASKS`)
+    traffic       cv2x/Traffic-v0       vehicles drive (Gymnasium), the mover commands its speed and lane
 
 The episode seeds are package constants, drawn once at import from named ``SeedSequence`` s
 (:data:`PROTOCOL_ENTROPY`, the task's name, the list's kind), so they are the same on every machine
@@ -39,14 +39,10 @@ from cv2x_marl.env.seeds import (  # noqa: F401 - the protocol's lists, re-expor
 #: the env ids of the tasks, in one place (issue 27's new ids; tests stand them in with the v2 ids
 #: until those are registered)
 TASK_ENV_IDS: Mapping[str, str] = MappingProxyType(
-    {"singlemover": "cv2x/SingleMover-v3", "cooperative": "cv2x/Cooperative-v0"}
+    {"singlemover": "cv2x/SingleMover-v3", "cooperative": "cv2x/Cooperative-v0", "traffic": "cv2x/Traffic-v0"}
 )
 #: tasks of issue 27 not built yet: name -> what is missing (refused by name, never run)
-# TODO(issue 27, item 1): cv2x/Traffic-v0 (vehicles drive, speed / lane actions, a privileged planner as
-# its ceiling); its methods: static, random, gbmu projected on the road, sensing on the road.
-PENDING_TASKS: Mapping[str, str] = MappingProxyType(
-    {"traffic": "cv2x/Traffic-v0 (driving vehicles, speed and lane actions) is not built yet"}
-)
+PENDING_TASKS: Mapping[str, str] = MappingProxyType({})
 #: the fixed env options of every task: the CLI's `evaluate` defaults (paper preset, 100 steps of 5 m)
 BASE_OPTIONS: Mapping[str, Any] = MappingProxyType({"preset": "paper", "max_cycles": 100, "max_step_m": 5.0})
 #: the scripted methods every offset-action task runs (docs/benchmark.md)
@@ -138,6 +134,18 @@ TASKS: Mapping[str, Task] = MappingProxyType(
             refused={"best-response": "one mover: its best response is the ceiling, run `optimum`"},
         ),
         "cooperative": make_task("cooperative", TASK_ENV_IDS["cooperative"], (*SCRIPTED_METHODS, "best-response")),
+        "traffic": make_task(
+            "traffic",
+            TASK_ENV_IDS["traffic"],
+            SCRIPTED_METHODS,
+            refused={
+                "best-response": "one mover: its best response is the ceiling, run `optimum`",
+                **{
+                    p: "it moves by position offsets and has no road version (actions are speed and lane commands)"
+                    for p in ("greedy", "oracle", "planner")
+                },
+            },
+        ),
     }
 )
 

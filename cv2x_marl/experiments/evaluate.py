@@ -196,8 +196,13 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
 
 def optimum_utilities(env: MobilityEnv, ref: Any = None) -> np.ndarray:
     """[N] every vehicle's utility (env units) with the movers at the ``optimum`` policy's targets
-    (``ref``: that policy, built once per env; its targets are those it drives to)."""
+    (``ref``: that policy, built once per env; its targets are those it drives to). On an env with episode
+    metrics whose ceiling is a search over the episode (``cv2x/Traffic-v0``): the search's best episode-mean
+    utility at the mover (NaN elsewhere)."""
     ref = make_policy("optimum", env) if ref is None else ref
+    if hasattr(ref, "ceiling_utilities"):
+        ref.reset(env.seed_used)
+        return np.asarray(ref.ceiling_utilities())
     ref.reset()
     ref.act({})  # computes the episode's targets (the env at its reset)
     return env._utilities(env.links.success(ref.targets_m), env.target)
@@ -371,6 +376,9 @@ def evaluate_rows(
         zero = np.zeros(2, dtype=np.float32)
         rows: list[dict[str, Any]] = []
         optimum_cache: dict[int, np.ndarray] = {}
+        # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
+        means = bool(getattr(env.options, "episode_metrics", False))
+        static_cache: dict[int, tuple[float, float]] = {}
         t0 = time.perf_counter()
         steps = 0
         for run, policy in enumerate(policies):
@@ -382,6 +390,10 @@ def evaluate_rows(
                 if ref is not None and ep not in optimum_cache:
                     optimum_cache[ep] = optimum_utilities(env, ref)
                 u_opt = optimum_cache.get(ep)
+                if means and ep not in static_cache:
+                    from cv2x_marl.policies.traffic import reference_means
+
+                    static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
                 returns = dict.fromkeys(movers, 0.0)
                 last = infos
                 while env.agents:
@@ -394,15 +406,23 @@ def evaluate_rows(
                 for a in movers:
                     info = last[a]
                     row: dict[str, Any] = {"run": run} if several else {}
+                    u_start, u_end, p_start, p_end = (
+                        info["utility_start"],
+                        info["utility"],
+                        info["prr_start"],
+                        info["prr"],
+                    )
+                    if means:  # the episode's means; the start: static's means on the same episode
+                        (u_start, p_start), u_end, p_end = static_cache[ep], info["utility_mean"], info["prr_mean"]
                     row.update(
                         {
                             "episode": ep,
                             "seed": ep_seed,
                             "agent": a,
-                            "utility_start": info["utility_start"],
-                            "utility_end": info["utility"],
-                            "prr_start": info["prr_start"],
-                            "prr_end": info["prr"],
+                            "utility_start": u_start,
+                            "utility_end": u_end,
+                            "prr_start": p_start,
+                            "prr_end": p_end,
                             "jain_end": info["jain"],
                             "return": returns[a],
                         }
@@ -442,8 +462,10 @@ def evaluate_rows(
             "runtime_s": runtime,
             "env_steps": steps,
         }
-        if team or protocol:  # (the default path's summary keeps its keys: tests/reference)
+        if team or protocol or means:  # (the default path's summary keeps its keys: tests/reference)
             summary["gains_of"] = "the team (mean over the vehicles)" if team else "each mover (eq. 17)"
+            if means:
+                summary["gains_of"] = "each mover's episode means against static's on the same episode"
         if vs_optimum:
             uo = np.array([r["utility_optimum"] for r in rows])
             with np.errstate(divide="ignore", invalid="ignore"):

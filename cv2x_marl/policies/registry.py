@@ -43,10 +43,30 @@ PPO_PREFIX = "ppo:"
 OFFSET_POLICIES = ("gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response")
 
 
+#: the scripted policies with a road version (:mod:`cv2x_marl.policies.traffic`) where the movers drive the
+#: lane model with speed and lane commands and observe their driving entries (``cv2x/Traffic-v0``)
+ROAD_POLICIES = ("static", "random", "gbmu", "sensing", "optimum")
+
+
+def drives(env: MobilityEnv) -> bool:
+    """Whether ``env``'s movers drive the lane model with speed commands and observe their driving entries."""
+    layout = getattr(env, "layout", None)
+    return bool(getattr(env, "drives", False) and layout is not None and layout.drive)
+
+
 def refuse_action_space(spec: str, env: MobilityEnv) -> None:
     """Refuse a policy that cannot act in ``env``'s action space, naming it, the env's setting and the
-    policies that can: an offset policy is never reinterpreted as speed and lane commands."""
+    policies that can: an offset policy is never reinterpreted as speed and lane commands (those with a
+    road version, :data:`ROAD_POLICIES`, run it where the env drives the lane model)."""
     speed = getattr(env, "mode", "snapshot") == "traffic" and getattr(env, "traffic_action", "offset") == "speed"
+    if speed and drives(env):
+        if spec in SCRIPTED and spec not in ROAD_POLICIES:
+            raise ValueError(
+                f"policy {spec!r} moves vehicles by position offsets and has no road version, but this env's "
+                "actions are speed and lane commands (cv2x/Traffic-v0); allowed here: "
+                f"{', '.join(ROAD_POLICIES)}, {PPO_PREFIX}PATH (a model trained on this action space)"
+            )
+        return
     if speed and spec in OFFSET_POLICIES:
         raise ValueError(
             f"policy {spec!r} moves vehicles by position offsets, but this env's actions are speed and lane "
@@ -66,6 +86,17 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         delta: step size per env step (gbmu, greedy, oracle).
     """
     refuse_action_space(spec, env)
+    if drives(env) and spec in ROAD_POLICIES and spec != "random":
+        from cv2x_marl.policies import traffic
+
+        if spec == "static":
+            return traffic.HoldSpeedPolicy(env)
+        if spec == "gbmu":
+            gbmu = GbmuPolicy(load_model(Path(model_path)), env.layout, env.max_step_m, delta=delta, fairness=True)
+            return traffic.RoadGbmuPolicy(env, gbmu)
+        if spec == "sensing":
+            return traffic.RoadSensingPolicy(env)
+        return traffic.TrafficOptimumPolicy(env, make_policy)
     if spec == "static":
         return StaticPolicy()
     if spec == "random":

@@ -161,3 +161,65 @@ def advance(road: Road, rcfg: RoadConfig, st: VehicleState, dt_s: float, rng: np
         s_m=np.mod(s_new, road.length_m),
         odometer_m=st.odometer_m + dist,
     )
+
+
+#: lane commands of :func:`drive`: one lane to the left (towards the centre line: lane index - 1), none,
+#: one lane to the right (lane index + 1)
+LANE_LEFT, LANE_KEEP, LANE_RIGHT = 1, 0, -1
+
+
+def headings(st: VehicleState) -> FloatArray:
+    """[N, 2] unit vectors of each vehicle's direction of travel (defined at standstill too)."""
+    out = np.zeros((st.n, 2))
+    out[np.arange(st.n), st.axis] = st.direction
+    return out
+
+
+def drive(
+    road: Road,
+    st: VehicleState,
+    target_mps: FloatArray,
+    lane_change: IntArray,
+    accel_mps2: float,
+    decel_mps2: float,
+    dt_s: float,
+    limit_mps: float,
+) -> VehicleState:
+    """Speed and lane commands applied over one step of ``dt_s`` (the lane model; opt-in: only vehicles
+    with a finite target are touched, every other one keeps its speed and lane bit for bit).
+
+    A commanded vehicle's speed moves towards ``clip(target, 0, limit_mps)`` by at most ``accel_mps2 *
+    dt_s`` up and ``decel_mps2 * dt_s`` down, so a speed in ``[0, limit_mps]`` stays there; the new speed
+    holds over the step (semi-implicit Euler: :func:`advance` then moves the vehicle by ``new speed x
+    dt_s``). A lane command moves it one lane left (``+1``, towards the centre line) or right (``-1``) at
+    the end of the step (lateral motion is not modelled); a lane that does not exist (beyond the
+    ``lanes_per_direction`` of its road) is ignored. The lane model has no car following: vehicles
+    pass through each other.
+
+    Args:
+        road: the road (its lanes per direction).
+        st: the vehicles' state.
+        target_mps: [N] target speeds (m/s); NaN: no command.
+        lane_change: [N] :data:`LANE_LEFT`, :data:`LANE_KEEP` or :data:`LANE_RIGHT` (ignored without a target).
+        accel_mps2, decel_mps2: the bounds of the speed change (m/s^2, > 0).
+        dt_s: the step (s).
+        limit_mps: the speed limit (m/s).
+
+    Returns:
+        the state with the new speeds and lanes (positions unchanged).
+    """
+    target_mps = np.asarray(target_mps, dtype=np.float64)
+    lane_change = np.asarray(lane_change, dtype=np.int64)
+    if target_mps.shape != (st.n,) or lane_change.shape != (st.n,):
+        raise ValueError(f"target_mps and lane_change must have shape ({st.n},)")
+    if not np.isin(lane_change, (LANE_LEFT, LANE_KEEP, LANE_RIGHT)).all():
+        raise ValueError("lane_change must hold -1 (right), 0 (keep) or +1 (left)")
+    if not (accel_mps2 > 0 and decel_mps2 > 0 and dt_s > 0 and limit_mps > 0):
+        raise ValueError("accel_mps2, decel_mps2, dt_s and limit_mps must be > 0")
+    cmd = np.isfinite(target_mps)
+    v = st.speed_mps
+    goal = np.clip(np.where(cmd, target_mps, 0.0), 0.0, limit_mps)
+    speed = np.where(cmd, np.clip(goal, v - decel_mps2 * dt_s, v + accel_mps2 * dt_s), v)
+    lane = st.lane - np.where(cmd, lane_change, 0)
+    lane = np.where((lane >= 0) & (lane < road.lanes_per_direction), lane, st.lane)
+    return replace(st, speed_mps=speed, lane=lane.astype(st.lane.dtype))

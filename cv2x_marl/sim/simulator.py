@@ -188,6 +188,8 @@ class Simulator:
         self.subframe = 0
         self._geometry: Geometry | None = None
         self.offsets_m = np.zeros((self.n, 2))
+        #: speed and lane commands applied at each period end (:meth:`set_drive`; None: none, the lane model as it is)
+        self._drive: tuple[FloatArray, IntArray, float, float] | None = None
         #: (tx, rx, p_success, cause) [L] of the last simulated part of a period (the env's traffic mode reads
         #: the period it ran); per_ue: all chunks of that part, in order
         self.last_links: ChunkLinksOut | None = None
@@ -313,6 +315,25 @@ class Simulator:
         self.offsets_m = offsets_m.copy()
         if self.subframe % self.rri == 0:
             self._geometry = None
+
+    def set_drive(self, target_mps: FloatArray, lane_change: IntArray, accel_mps2: float, decel_mps2: float) -> None:
+        """Speed and lane commands of the lane model (``vehicles.mobility=model``; the env's Traffic task),
+        applied at the end of every period from now on (:func:`cv2x_marl.sim.mobility.drive`, limit
+        ``vehicles.speed_max_mps``), before the vehicles move; vehicles without a target (NaN) keep the
+        lane model's constant speed. :meth:`reset` clears them.
+
+        Args:
+            target_mps: [N] target speeds (m/s; NaN: no command).
+            lane_change: [N] +1 one lane left, 0 keep, -1 one lane right.
+            accel_mps2, decel_mps2: the bounds of the speed change (m/s^2).
+        """
+        if self.config.vehicles.mobility != "model":
+            raise ValueError("set_drive needs vehicles.mobility=model (SUMO drives its vehicles itself)")
+        target = np.asarray(target_mps, dtype=np.float64).copy()
+        lanes = np.asarray(lane_change, dtype=np.int64).copy()
+        if target.shape != (self.n,) or lanes.shape != (self.n,):
+            raise ValueError(f"target_mps and lane_change must have shape ({self.n},)")
+        self._drive = (target, lanes, float(accel_mps2), float(decel_mps2))
 
     # --------------------------------------------------------------- geometry
     def displacement_m(self, pos_from: FloatArray, pos_to: FloatArray) -> FloatArray:
@@ -488,5 +509,9 @@ class Simulator:
                 self._admit()
         else:
             assert isinstance(self.state, mobility.VehicleState)
+            if self._drive is not None:
+                target, lanes, accel, decel = self._drive
+                dt_s, limit = self.rri / 1000.0, self.config.vehicles.speed_max_mps
+                self.state = mobility.drive(self.road, self.state, target, lanes, accel, decel, dt_s, limit)
             self.state = mobility.advance(self.road, self.config.road, self.state, self.rri / 1000.0, self.rng.mobility)
         self._geometry = None

@@ -84,7 +84,9 @@ def test_speed_mode_same_seed_same_episode() -> None:
 
 def test_speed_mode_needs_sumo_traffic(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"invalid env argument traffic_action='speed'; allowed: offset \| speed"):
-        parallel_env(mode="traffic", traffic_action="speed")  # the lane model has no driver to command
+        parallel_env(
+            traffic_action="speed"
+        )  # snapshot mode (traffic mode on the lane model: tests/env/test_traffic.py)
     with pytest.raises(ValueError, match="traffic_action"):
         parallel_env(preset="sumo-grid", traffic_action="speed")  # snapshot mode
     with pytest.raises(ValueError, match="traffic_action"):
