@@ -316,6 +316,42 @@ def test_benchmark_over_workers_gives_the_same_rows(tmp_path: Path, monkeypatch:
     assert _read_csv(tmp_path / "a" / "benchmark.csv") == _read_csv(tmp_path / "b" / "benchmark.csv")
 
 
+def test_chunked_jobs_give_the_rows_of_one_job() -> None:
+    """Jobs of one episode each give the rows of one job over the same seeds (an episode depends on its seed
+    alone), numbered from the task's first held-out episode; the chunks partition the seeds in order."""
+    table = {"traffic": stand_in_tasks()["traffic"]}
+    whole = benchmark.plan_jobs(table, None, ["random"], {}, 3)
+    parts = benchmark.plan_jobs(table, None, ["random"], {}, 3, episodes_per_job=2)
+    seeds = list(table["traffic"].heldout_seeds[:3])
+    assert [(j["method"], j["seeds"]) for j in whole] == [("random", seeds), ("optimum", seeds)]
+    assert [(j["method"], j["first_episode"], j["seeds"]) for j in parts] == [
+        ("random", 0, seeds[:2]),
+        ("random", 2, seeds[2:]),
+        ("optimum", 0, seeds[:2]),
+        ("optimum", 2, seeds[2:]),
+    ]
+    one = benchmark.run_job(whole[0])
+    split = [r for j in parts[:2] for r in benchmark.run_job(j)]
+    assert [r["episode"] for r in split] == [0, 1, 2] and [r["seed"] for r in split] == seeds
+    assert split == one
+
+
+def test_map_in_processes_keeps_the_input_order() -> None:
+    """Spawned processes, the costliest first, results in input order; each finished item reported once."""
+    import math
+
+    from cv2x_marl.parallel import map_in_processes
+
+    seen: list[int] = []
+    items = [5, 3, 10, 4]
+    got = map_in_processes(math.factorial, items, 2, cost=float, on_done=lambda i, r: seen.append(i))
+    assert got == [120, 6, 3628800, 24]
+    assert sorted(seen) == [0, 1, 2, 3]
+    assert map_in_processes(math.factorial, items, 1) == got  # one worker: in this process
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        map_in_processes(math.factorial, items, 0)
+
+
 def test_benchmark_refusals_leave_no_folder(tmp_path: Path) -> None:
     out = tmp_path / "bench"
     table = stand_in_tasks()
@@ -329,6 +365,9 @@ def test_benchmark_refusals_leave_no_folder(tmp_path: Path) -> None:
         ({"models": ["singlemover=ppo:missing.zip"]}, "no model file missing.zip"),
         ({"episodes": 0}, "--episodes must be an integer >= 1"),
         ({"workers": 0}, "--workers must be an integer >= 1"),
+        ({"backend": "threads"}, "--backend must be one of ray, processes"),
+        ({"backend": "processes", "address": "auto"}, "--address names a Ray cluster"),
+        ({"episodes_per_job": 0}, "--episodes-per-job must be an integer >= 1"),
     ]
     for kw, match in cases:
         if kw.get("task_table", table) is None and all(t.available for t in tasks.TASKS.values()):

@@ -4,9 +4,13 @@ Per task (:mod:`cv2x_marl.env.tasks`) the scripted methods, its ceiling (always 
 it) and any learned models given (``--model TASK=ppo:PATH``, repeated or a glob for several training
 runs) are evaluated on the task's held-out seeds by :func:`cv2x_marl.experiments.evaluate.evaluate_rows`,
 the loop of `cv2x-marl evaluate` (a method's numbers are those of ``cv2x-marl evaluate --env ID
---policy METHOD --seeds heldout``). Each (task, method, run) is one job; with ``workers > 1`` or an
+--policy METHOD --seeds heldout``). A job is one (task, method, run) on a chunk of at most
+``episodes_per_job`` of its held-out episodes (an episode's numbers depend on its seed alone: the env and
+the policy are reset with it, so chunks give the rows of one job, tested); with ``workers > 1`` or an
 ``address`` the jobs run as Ray tasks (:func:`cv2x_marl.parallel.ray_session`: an embedded local Ray
-of ``workers`` CPUs, or the cluster at ``address``), else in this process (no Ray import).
+of ``workers`` CPUs, or the cluster at ``address``) or, with ``backend="processes"``, in a pool of
+``workers`` spawned processes without Ray (:func:`cv2x_marl.parallel.map_in_processes`), else in this
+process (no Ray import).
 
 The run folder (:mod:`cv2x_marl.runs`) receives ``benchmark.csv`` (one row per task, method, run and
 episode: the means over the episode's movers), ``summary.json`` (per task and method the IQM and 95 %
@@ -50,6 +54,11 @@ CSV_FIELDS = (
 )
 #: the default label of a learned model given without one
 LEARNED = "ppo"
+#: how jobs run when ``workers > 1``: Ray tasks (an embedded local Ray, or ``address``) or spawned processes
+BACKENDS = ("ray", "processes")
+#: held-out episodes per job when the jobs run in parallel (``--episodes-per-job``): small enough that a
+#: ceiling's 48 episodes spread over the workers, large enough that building the env and policy is amortised
+EPISODES_PER_JOB = 4
 
 
 def parse_models(items: Sequence[str], tasks: Mapping[str, Task]) -> dict[str, dict[str, list[str]]]:
@@ -84,10 +93,12 @@ def plan_jobs(
     methods: Sequence[str] | None,
     models: Mapping[str, Mapping[str, list[str]]],
     episodes: int | None,
+    episodes_per_job: int | None = None,
 ) -> list[dict[str, Any]]:
-    """One job per task, method and run, checked before anything runs: available tasks, methods
-    each task accepts (its refusals, names :func:`~cv2x_marl.policies.registry.make_policy` knows,
-    searches it can afford: each task's env and policies are built once here)."""
+    """One job per task, method, run and chunk of at most ``episodes_per_job`` held-out episodes (None:
+    all of them in one job), checked before anything runs: available tasks, methods each task accepts
+    (its refusals, names :func:`~cv2x_marl.policies.registry.make_policy` knows, searches it can afford:
+    each task's env and policies are built once here)."""
     from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.env.tasks import get_task
     from cv2x_marl.policies.registry import make_policy
@@ -102,6 +113,9 @@ def plan_jobs(
         )
     if episodes is not None and (isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1):
         raise ValueError(f"--episodes must be an integer >= 1, got {episodes!r}")
+    chunk = episodes_per_job
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
+        raise ValueError(f"--episodes-per-job must be an integer >= 1, got {chunk!r}")
     jobs: list[dict[str, Any]] = []
     for task in chosen:
         seeds = list(task.heldout_seeds[:episodes] if episodes else task.heldout_seeds)
@@ -124,24 +138,28 @@ def plan_jobs(
             if label in runs:
                 raise ValueError(f"--model {task.name}/{label}: the label names a scripted method; choose another")
             runs[label] = list(specs)
+        size = chunk or len(seeds)
         for method, specs in runs.items():
             for run, spec in enumerate(specs):
-                jobs.append(
-                    {
-                        "task": task.name,
-                        "env_id": task.env_id,
-                        "options": dict(task.options),
-                        "method": method,
-                        "run": run,
-                        "policy": spec,
-                        "seeds": seeds,
-                    }
-                )
+                for first in range(0, len(seeds), size):
+                    jobs.append(
+                        {
+                            "task": task.name,
+                            "env_id": task.env_id,
+                            "options": dict(task.options),
+                            "method": method,
+                            "run": run,
+                            "policy": spec,
+                            "first_episode": first,
+                            "seeds": seeds[first : first + size],
+                        }
+                    )
     return jobs
 
 
 def run_job(job: dict[str, Any]) -> list[dict[str, Any]]:
-    """One (task, method, run) on its seeds: per episode the means over the movers (a Ray task)."""
+    """One (task, method, run) on its chunk of seeds: per episode the means over the movers (a Ray task or
+    a pool process); ``episode`` counts from the task's first held-out seed."""
     from cv2x_marl.experiments.evaluate import episode_means, evaluate_rows
 
     seeds = job["seeds"]
@@ -151,17 +169,31 @@ def run_job(job: dict[str, Any]) -> list[dict[str, Any]]:
     keys = ("utility_start", "utility_end", "utility_gain", "prr_start", "prr_end", "prr_gain")
     means = {k: episode_means(rows, k, 1, len(seeds))[0] for k in keys}
     base = {k: job[k] for k in ("task", "env_id", "method", "run", "policy")}
-    return [{**base, "episode": e, "seed": s, **{k: float(means[k][e]) for k in keys}} for e, s in enumerate(seeds)]
+    first = job.get("first_episode", 0)
+    return [
+        {**base, "episode": first + e, "seed": s, **{k: float(means[k][e]) for k in keys}} for e, s in enumerate(seeds)
+    ]
 
 
 def _execute(
-    jobs: list[dict[str, Any]], workers: int, address: str | None, progress: bool
+    jobs: list[dict[str, Any]], workers: int, address: str | None, progress: bool, backend: str = "ray"
 ) -> list[list[dict[str, Any]]]:
-    """Every job's rows, in job order: here (one worker, no address) or as Ray tasks."""
+    """Every job's rows, in job order: here (one worker, no address), as Ray tasks or in spawned processes."""
     from tqdm import tqdm
 
     total = sum(len(j["seeds"]) for j in jobs)
     with tqdm(total=total, desc="benchmark", unit="ep", file=sys.stderr, disable=not progress) as bar:
+        if backend == "processes" and address is None:
+            from cv2x_marl.parallel import map_in_processes
+
+            def done(i: int, _: Any) -> None:
+                bar.update(len(jobs[i]["seeds"]))
+
+            # the ceilings first: their jobs are the longest (a search per episode)
+            def cost(job: dict[str, Any]) -> float:
+                return float(len(job["seeds"]) * (100 if job["method"] == "optimum" else 1))
+
+            return list(map_in_processes(run_job, jobs, workers, cost=cost, on_done=done))
         if workers == 1 and address is None:
             out = []
             for job in jobs:
@@ -298,6 +330,8 @@ def run_benchmark(
     overwrite: bool = False,
     progress: bool = True,
     task_table: Mapping[str, Task] | None = None,
+    backend: str = "ray",
+    episodes_per_job: int | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark into the run folder ``out_dir``; returns ``summary.json``'s content.
 
@@ -306,8 +340,13 @@ def run_benchmark(
         methods: scripted methods (default: each task's); the ceiling is always run.
         models: ``TASK=ppo:PATH`` / ``TASK/LABEL=ppo:PATH`` (:func:`parse_models`).
         episodes: only the first ``episodes`` held-out seeds (quick runs; None: all).
-        workers: parallel jobs (> 1: an embedded local Ray of that many CPUs); address: a Ray cluster.
+        workers: parallel jobs (> 1: an embedded local Ray of that many CPUs, or that many processes with
+            ``backend="processes"``); address: a Ray cluster.
         task_table: the tasks (default :data:`cv2x_marl.env.tasks.TASKS`).
+        backend: ``ray`` or ``processes`` (:data:`BACKENDS`; how jobs run when ``workers > 1``).
+        episodes_per_job: held-out episodes per job (None: :data:`EPISODES_PER_JOB` when the jobs run in
+            parallel, every episode of a (task, method, run) in one job otherwise). The rows do not depend
+            on it.
     """
     from cv2x_marl.env import tasks as task_module
     from cv2x_marl.io import atomic_write, write_json
@@ -316,7 +355,13 @@ def run_benchmark(
     table = task_module.TASKS if task_table is None else task_table
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
-    jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes)
+    if backend not in BACKENDS:
+        raise ValueError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend == "processes" and address is not None:
+        raise ValueError("--address names a Ray cluster: it goes with --backend ray, not processes")
+    parallel = workers > 1 or address is not None
+    chunk = episodes_per_job if episodes_per_job is not None else (EPISODES_PER_JOB if parallel else None)
+    jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes, chunk)
     params = {
         "tasks": list(dict.fromkeys(j["task"] for j in jobs)),
         "methods": list(methods or []),
@@ -326,7 +371,7 @@ def run_benchmark(
     inputs = [Path(j["policy"][4:]) for j in jobs if j["policy"].startswith("ppo:")]
     with run_folder(out_dir, "benchmark", overwrite=overwrite, parameters=params, inputs=inputs):
         t0 = time.perf_counter()
-        rows = [r for part in _execute(jobs, workers, address, progress) for r in part]
+        rows = [r for part in _execute(jobs, workers, address, progress, backend) for r in part]
         summary = summarise(rows, table)
         summary["wall_s"] = time.perf_counter() - t0
         out = Path(out_dir)
@@ -359,6 +404,18 @@ def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overw
     )
     p.add_argument("--episodes", type=count, default=None, help="only the first N held-out seeds (quick runs)")
     p.add_argument("--workers", type=count, default=1, help="parallel jobs (> 1: a local Ray; default 1, no Ray)")
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="ray",
+        help="with --workers > 1: Ray tasks (default) or spawned processes (no Ray needed)",
+    )
+    p.add_argument(
+        "--episodes-per-job",
+        type=count,
+        default=None,
+        help=f"held-out episodes per job (default: {EPISODES_PER_JOB} in parallel, all in one process)",
+    )
     p.add_argument("--address", help="Ray cluster address (auto, ray://HOST:10001); default: a local Ray")
     p.add_argument("--overwrite", action="store_true", help=overwrite_help)
     p.add_argument("--json", action="store_true", help="print summary.json")
@@ -382,6 +439,8 @@ def run_from_args(args: argparse.Namespace) -> int:
         args.address,
         args.overwrite,
         not args.quiet,
+        backend=args.backend,
+        episodes_per_job=args.episodes_per_job,
     )
     if args.json:
         sys.stdout.write(dumps_json(summary) + "\n")
