@@ -186,14 +186,14 @@ def _execute(
         if backend == "processes" and address is None:
             from cv2x_marl.parallel import map_in_processes
 
-            def done(i: int, _: Any) -> None:
+            def finished(i: int, _: Any) -> None:
                 bar.update(len(jobs[i]["seeds"]))
 
             # the ceilings first: their jobs are the longest (a search per episode)
             def cost(job: dict[str, Any]) -> float:
                 return float(len(job["seeds"]) * (100 if job["method"] == "optimum" else 1))
 
-            return list(map_in_processes(run_job, jobs, workers, cost=cost, on_done=done))
+            return list(map_in_processes(run_job, jobs, workers, cost=cost, on_done=finished))
         if workers == 1 and address is None:
             out = []
             for job in jobs:
