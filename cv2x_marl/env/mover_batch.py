@@ -318,7 +318,6 @@ class MoverBatch:
         info = np.zeros((self.k, 8))
         (period, wb1, range2, model, per_sinr, per, thr, sens, *opts) = self._const
         if self.v3 is not None:
-            self.v3.draw_periods(self.envs, mask)
             _mover_steps_v3(  # type: ignore[call-arg]
                 mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
                 self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,

@@ -3,7 +3,9 @@
 :class:`~cv2x_marl.env.mover_batch.MoverBatch` steps K one-mover copies in one compiled call. With
 observation version 3 a step also reads the shadowing field where the mover now stands (its row and
 column), takes one period of measurements (the draws of every pair from each copy's ``measurement``
-stream, drawn in Python in :func:`draw_periods`; the mover's column of reports updated) and builds the
+stream, drawn inside the compiled step by :func:`cv2x_marl.env.pcg64.draw_column_into`: numpy's ``PCG64``
+draws bit for bit, the copy's generator state kept in :attr:`V3Stacks.rng_state` and written back into its
+``numpy.random.Generator`` by :meth:`V3Stacks.sync`; the mover's column of reports updated) and builds the
 measured and own v3 entries. :class:`V3Stacks` holds that per-copy state; :func:`_mover_steps_v3` is
 ``MobilityEnv.step_mover`` for K copies: the same compiled functions in the same order (the field's
 :func:`~cv2x_marl.sim.kernels.field.pair_field_db`, :func:`~cv2x_marl.sim.kernels.mover_column`, the
@@ -22,6 +24,7 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step
 from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
 from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
+from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_column_into, jump_table, set_state, state_of
 from cv2x_marl.sim.kernels import mover_column
 from cv2x_marl.sim.kernels.field import field_row_into
 
@@ -51,6 +54,9 @@ class V3Stacks:
         self.uniform = np.zeros((k, n, n))
         self.fade = np.zeros((k, n, n))
         self.normal = np.zeros((k, n, n))
+        #: each copy's ``measurement`` stream: its PCG64 state (:func:`cv2x_marl.env.pcg64.state_of`)
+        self.rng_state = np.zeros((k, 4), dtype=np.uint64)
+        self.jumps = jump_table(n)
         self.los = np.zeros((k, n, n), dtype=bool)
         self.gain_col_db = np.zeros((k, n))
         self.shadow_col_db = np.zeros((k, n))
@@ -79,6 +85,7 @@ class V3Stacks:
         self.head[k] = m.head
         self.rsrp_dbm[k] = m.rsrp_dbm
         self.age[k] = m.age
+        self.rng_state[k] = state_of(m.rng)
         self.rx_dbm[k] = env._rx_dbm
         links = env.links
         args = links._kernel_args
@@ -120,15 +127,6 @@ class V3Stacks:
             self.f_g0[k] = field.g0
             self.decorrelation_m = float(field.decorrelation_m)
 
-    def draw_periods(self, envs: list[MobilityEnv], active: NDArray[np.bool_]) -> None:
-        """One period's draws of every pair for each active copy, from its ``measurement`` stream, in the
-        order of :meth:`~cv2x_marl.env.measurement.Measurements.update`."""
-        for k in np.flatnonzero(active):
-            rng = envs[k].measure.rng
-            rng.random(out=self.uniform[k])
-            rng.standard_exponential(out=self.fade[k])
-            rng.standard_normal(out=self.normal[k])
-
     def kernel_args(self) -> tuple[Any, ...]:
         """The stacks in :func:`_mover_steps_v3`'s order (after the arguments of ``_mover_steps``)."""
         return (
@@ -136,7 +134,8 @@ class V3Stacks:
             self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db,
             self.shadow_col_db,
             self.idx, self.val, self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, self.rx_dbm,
-            self.uniform, self.fade, self.normal, self.error_db, self.slot_frac, self.sub_frac, self.horizon,
+            self.uniform, self.fade, self.normal, self.rng_state, self.jumps, ZIGGURAT_U64, ZIGGURAT_F64,
+            self.error_db, self.slot_frac, self.sub_frac, self.horizon,
         )  # fmt: skip
 
     def sync(self, k: int, env: MobilityEnv) -> None:
@@ -147,6 +146,7 @@ class V3Stacks:
         m.head = int(self.head[k])
         m.rsrp_dbm = self.rsrp_dbm[k].copy()
         m.age = self.age[k].copy()
+        set_state(m.rng, self.rng_state[k])
         env._rx_dbm = self.rx_dbm[k].copy()
 
 
@@ -226,6 +226,10 @@ def _mover_steps_v3(
     uniform: FloatArray,
     fade: FloatArray,
     normal: FloatArray,
+    rng_state: NDArray[np.uint64],
+    jumps: NDArray[np.uint64],
+    zig_u64: NDArray[np.uint64],
+    zig_f64: FloatArray,
     error_db: float,
     slot_frac: FloatArray,
     sub_frac: FloatArray,
@@ -239,8 +243,10 @@ def _mover_steps_v3(
 
     The arguments up to ``model_p_min`` as :func:`cv2x_marl.env.mover_batch._mover_steps`; then
     :meth:`V3Stacks.kernel_args` (field arrays [K, ...] of :class:`~cv2x_marl.sim.shadow_field.ShadowField`,
-    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], this period's draws
-    [K, N, N], the neighbours' resource fractions [K, N], the horizon [K]); then the outputs.
+    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], scratch for this
+    period's draws [K, N, N] (column ``mover[k]`` written), the PCG64 states [K, 4] of the copies' measurement
+    streams with :func:`~cv2x_marl.env.pcg64.jump_table` and the ziggurat tables, the neighbours' resource
+    fractions [K, N], the horizon [K]); then the outputs.
     """
     n_copies = actions.shape[0]
     n = positions_m.shape[1]
@@ -299,6 +305,8 @@ def _mover_steps_v3(
             p[k, j, i] = p_col[j]
             rx_dbm[k, j, i] = rx_col[j]
         rows[0] = i
+        # this period's draws of every pair from the copy's measurement stream (Measurements.update's order)
+        draw_column_into(rng_state[k], jumps, zig_u64, zig_f64, i, uniform[k], fade[k], normal[k])
         _update_columns(
             power_mw[k], count[k], head[k], rsrp_dbm[k], age[k], rx_dbm[k], p[k], uniform[k], fade[k], normal[k],
             error_db, rows,
