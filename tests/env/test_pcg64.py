@@ -123,3 +123,19 @@ def test_refusals() -> None:
         state_of(np.random.Generator(np.random.MT19937(1)))
     with pytest.raises(ValueError, match="count"):
         jump_table(-1)
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.MT19937])
+def test_measurement_window_draws_equal_numpy(bit_generator: type) -> None:
+    """Measurements.start's window of draws (compiled for PCG64, numpy's calls otherwise) against numpy."""
+    from cv2x_marl.env.measurement import _draw_window
+
+    rng = np.random.Generator(bit_generator(17))
+    ref = np.random.Generator(bit_generator(17))
+    u, e, z = (np.empty((10, 21, 21)) for _ in range(3))
+    _draw_window(rng, u, e, z)
+    for k in range(10):
+        assert np.array_equal(u[k], ref.random((21, 21)))
+        assert np.array_equal(e[k], ref.standard_exponential((21, 21)))
+        assert np.array_equal(z[k], ref.standard_normal((21, 21)))
+    assert rng.random(4).tolist() == ref.random(4).tolist()  # left where numpy leaves it

@@ -171,6 +171,8 @@ def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_is_batched() -> 
         par = copies[k].par
         assert np.array_equal(par.state()[: 6 * par.n], ref.par.state()[: 6 * par.n])
         assert np.array_equal(par.measure.rsrp_dbm[:, 0], ref.par.measure.rsrp_dbm[:, 0], equal_nan=True)
+        # the draws made inside the compiled step (env/pcg64.py) left the copy's stream where numpy's leaves it
+        assert par.measure.rng.bit_generator.state == ref.par.measure.rng.bit_generator.state
     vec.close()
 
 
