@@ -26,7 +26,7 @@ from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_colum
 from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
 from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_column_into, jump_table, set_state, state_of
 from cv2x_marl.sim.kernels import mover_column
-from cv2x_marl.sim.kernels.field import field_row_into
+from cv2x_marl.sim.kernels.field import field_pairs_row_into, gather_mover_pairs
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -66,13 +66,14 @@ class V3Stacks:
         self.sub_frac = np.zeros((k, n))
         self.horizon = np.ones(k, dtype=np.int64)
         w = 1
+        # the field of each copy's mover pairs, by the other end (kernels.field.gather_mover_pairs)
         self.f_start = np.zeros((k, n, 2))
-        self.f_shadow0 = np.zeros((k, n, n))
-        self.f_sigma = np.zeros((k, n, n))
-        self.f_k_lo = np.zeros((k, n, n, w, 2))
-        self.f_k_hi = np.zeros((k, n, n, w, 2))
-        self.f_phase = np.zeros((k, n, n, w))
-        self.f_g0 = np.zeros((k, n, n))
+        self.f_shadow0 = np.zeros((k, n))
+        self.f_sigma = np.zeros((k, n))
+        self.f_k_lo = np.zeros((k, n, w, 2))
+        self.f_k_hi = np.zeros((k, n, w, 2))
+        self.f_phase = np.zeros((k, n, w))
+        self.f_g0 = np.zeros((k, n))
         self.decorrelation_m = 1.0
         self.eirp_dbm = 0.0
         self.noise_mw = 0.0
@@ -113,18 +114,16 @@ class V3Stacks:
         field = links.field
         if self.has_field:
             assert field is not None
-            if self.f_phase.shape[3] != field.phase.shape[-1]:
+            if self.f_phase.shape[2] != field.phase.shape[-1]:
                 w = field.phase.shape[-1]
-                self.f_k_lo = np.zeros((self.k, self.n, self.n, w, 2))
-                self.f_k_hi = np.zeros((self.k, self.n, self.n, w, 2))
-                self.f_phase = np.zeros((self.k, self.n, self.n, w))
+                self.f_k_lo = np.zeros((self.k, self.n, w, 2))
+                self.f_k_hi = np.zeros((self.k, self.n, w, 2))
+                self.f_phase = np.zeros((self.k, self.n, w))
             self.f_start[k] = field.start_m
-            self.f_shadow0[k] = field.shadow0_db
-            self.f_sigma[k] = field.sigma_db
-            self.f_k_lo[k] = field.k_lo
-            self.f_k_hi[k] = field.k_hi
-            self.f_phase[k] = field.phase
-            self.f_g0[k] = field.g0
+            gather_mover_pairs(
+                mover, field.shadow0_db, field.sigma_db, field.k_lo, field.k_hi, field.phase, field.g0,
+                self.f_shadow0[k], self.f_sigma[k], self.f_k_lo[k], self.f_k_hi[k], self.f_phase[k], self.f_g0[k],
+            )  # fmt: skip
             self.decorrelation_m = float(field.decorrelation_m)
 
     def kernel_args(self) -> tuple[Any, ...]:
@@ -242,7 +241,8 @@ def _mover_steps_v3(
     """Step every ``active`` copy k of observation version 3: ``MobilityEnv.step_mover(actions[k])``, in place.
 
     The arguments up to ``model_p_min`` as :func:`cv2x_marl.env.mover_batch._mover_steps`; then
-    :meth:`V3Stacks.kernel_args` (field arrays [K, ...] of :class:`~cv2x_marl.sim.shadow_field.ShadowField`,
+    :meth:`V3Stacks.kernel_args` (the field arrays of each copy's mover pairs, [K, N, ...], as
+    :func:`~cv2x_marl.sim.kernels.field.gather_mover_pairs` gives them,
     the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], scratch for this
     period's draws [K, N, N] (column ``mover[k]`` written), the PCG64 states [K, 4] of the copies' measurement
     streams with :func:`~cv2x_marl.env.pcg64.jump_table` and the ziggurat tables, the neighbours' resource
@@ -279,7 +279,7 @@ def _mover_steps_v3(
         t[k] += 1
         # the own links' gains where the mover stands: the field's row (MoverLinksStep), or the snapshot's
         if has_field:
-            field_row_into(
+            field_pairs_row_into(
                 x, y, pos, i, f_start[k], f_shadow0[k], f_sigma[k], decorrelation_m, f_k_lo[k], f_k_hi[k],
                 f_phase[k], f_g0[k], shadow,
             )  # fmt: skip
