@@ -34,6 +34,17 @@ if TYPE_CHECKING:
 FloatArray = NDArray[np.float64]
 
 
+def _widened(owner: Any, name: str, width: int, fill: float) -> NDArray[Any]:
+    """Stack ``name`` of ``owner`` [K, ..., G], its last axis grown to at least ``width`` (new entries ``fill``)."""
+    stack = getattr(owner, name)
+    if width > stack.shape[-1]:
+        grown = np.full((*stack.shape[:-1], width), fill, dtype=stack.dtype)
+        grown[..., : stack.shape[-1]] = stack
+        setattr(owner, name, grown)
+        stack = grown
+    return stack
+
+
 class V3Stacks:
     """Per-copy state of the v3 step for K copies of N vehicles (``W`` the sensing window, ``F`` the
     field's waves, ``G`` the interferer table's width)."""
@@ -78,6 +89,15 @@ class V3Stacks:
         self.eirp_dbm = 0.0
         self.noise_mw = 0.0
 
+    #: the per-copy stacks :meth:`load` fills (every entry of a copy's row; ``MoverBatch.row_of``), and those
+    #: whose last axis grows (with their fill)
+    ROW_ARRAYS = (
+        "power_mw", "count", "head", "rsrp_dbm", "age", "rng_state", "rx_dbm", "los", "gain_col_db", "shadow_col_db",
+        "idx", "val", "slot_frac", "sub_frac", "horizon", "f_start", "f_shadow0", "f_sigma", "f_k_lo", "f_k_hi",
+        "f_phase", "f_g0",
+    )  # fmt: skip
+    WIDE_ARRAYS: dict[str, float] = {"idx": -1, "val": 0.0}  # noqa: RUF012 - a constant table
+
     def load(self, k: int, env: MobilityEnv, mover: int) -> None:
         """Copy env copy ``k``'s v3 state (just after its reset) into the stacks."""
         m = env.measure
@@ -94,12 +114,8 @@ class V3Stacks:
         self.noise_mw = float(links.noise_mw)
         self.los[k] = args[1]
         idx, val = args[5], args[6]
-        if idx.shape[1] > self.idx.shape[2]:
-            grown_i = np.full((self.k, self.n, idx.shape[1]), -1, dtype=np.int64)
-            grown_v = np.zeros((self.k, self.n, idx.shape[1]))
-            grown_i[:, :, : self.idx.shape[2]] = self.idx
-            grown_v[:, :, : self.val.shape[2]] = self.val
-            self.idx, self.val = grown_i, grown_v
+        _widened(self, "idx", idx.shape[1], -1)
+        _widened(self, "val", val.shape[1], 0.0)
         self.idx[k] = -1
         self.val[k] = 0.0
         self.idx[k, :, : idx.shape[1]] = idx
