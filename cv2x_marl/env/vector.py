@@ -17,11 +17,12 @@ API like ``SyncVectorEnv`` over the same single-agent envs, and gives the same r
 * infos: every key of the single env's info (:data:`~cv2x_marl.env.mobility_env.INFO_KEYS`) as an
   array over the copies, with its ``_key`` mask.
 
-With ``start_pool`` the batched vector env keeps, per pooled episode seed, the batch's rows right after
-that start's reset: a later autoreset (or ``reset()`` without a seed) drawing the same seed copies them back
-into the batch (a few array copies) and the copy's env object runs its own reset only when it is read
-(``call``, ``get_attr``, ``set_attr``, ``render``); the results are the same bit for bit
-(``tests/env/test_v3_fast.py``). Read the copies through those methods, not through :attr:`envs` directly.
+With ``start_pool`` the batched vector envs keep (:data:`KEPT_STARTS`, process-wide), per pooled episode
+seed, the batch's rows right after that start's reset: a later autoreset (or ``reset()`` without a seed)
+drawing the same seed copies them back into the batch (a few array copies) and the copy's env object runs
+its own reset only when it is read (``call``, ``get_attr``, ``set_attr``, ``render``); the results are the
+same bit for bit (``tests/env/test_v3_fast.py``). Read the copies through those methods, not through
+:attr:`envs` directly.
 
 Steps go through :class:`~cv2x_marl.env.mover_batch.MoverBatch` (one numba call for all copies) when the
 env options allow it (:func:`~cv2x_marl.env.mover_batch.batch_problem`: no rendering, no
@@ -42,10 +43,16 @@ from numpy.typing import NDArray
 from cv2x_marl.checks import is_int
 from cv2x_marl.env import starts
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
-from cv2x_marl.env.mover_batch import MoverBatch, batch_problem, refuse_episode_method
+from cv2x_marl.env.mover_batch import MoverBatch, _signature, batch_problem, refuse_episode_method
 from cv2x_marl.env.single import AGENT, SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2, SingleMoverEnvV3
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
+
+#: pooled resets of the batched vector envs (``start_pool``), process-wide like
+#: :data:`~cv2x_marl.env.starts.START_CACHE`: (the settings of :func:`~cv2x_marl.env.starts.start_key`, episode
+#: seed, horizon) -> the batch's rows (``MoverBatch.row_of``), the observation and the info right after that
+#: start's reset; oldest first, bounded like the start cache
+KEPT_STARTS: OrderedDict[tuple[Any, ...], tuple[dict[str, Any], NDArray[np.float32], dict[str, Any]]] = OrderedDict()
 
 
 class SingleMoverVectorEnv(VectorEnv):
@@ -98,11 +105,8 @@ class SingleMoverVectorEnv(VectorEnv):
         self._obs = np.zeros((self.num_envs, self.envs[0].par.layout.size), dtype=np.float32)
         self._ended = np.zeros(self.num_envs, dtype=bool)
         self._started = np.zeros(self.num_envs, dtype=bool)
-        #: pooled resets (``start_pool``): (episode seed, horizon) -> the batch's rows, observation and info
-        #: right after that start's reset, kept so that its next reset is a copy of them (oldest first)
-        self._kept: OrderedDict[tuple[int, int], tuple[dict[str, Any], NDArray[np.float32], dict[str, Any]]] = (
-            OrderedDict()
-        )
+        #: what a kept start depends on besides its seed and horizon (:data:`KEPT_STARTS`)
+        self._settings = _settings_of(self.envs[0].par)
         #: per copy: the (episode seed, horizon) whose reset its env object has not run yet (None: it has)
         self._pending: list[tuple[int, int] | None] = [None] * self.num_envs
         self._last_info: dict[str, Any] = {}  # the info of the last reset run by _run_reset
@@ -139,16 +143,17 @@ class SingleMoverVectorEnv(VectorEnv):
             par._np_random = np.random.default_rng(int(env.np_random.integers(0, 2**63 - 1)))
         episode_seed = starts.pool_seed(par, par._np_random)
         key = (episode_seed, horizon)
-        kept = self._kept.get(key)
+        kept_key = (self._settings, episode_seed, horizon)
+        kept = KEPT_STARTS.get(kept_key) if self.batch.loaded.any() else None
         if kept is None:
             self._run_reset(k, key)
             self.batch.load(k)
             kept = (self.batch.row_of(k), self._obs[k].copy(), self._last_info)
-            self._kept[key] = kept
-            while len(self._kept) > starts.cache_size(par):
-                self._kept.popitem(last=False)
+            KEPT_STARTS[kept_key] = kept
+            while len(KEPT_STARTS) > starts.cache_size(par):
+                KEPT_STARTS.popitem(last=False)
         else:
-            self._kept.move_to_end(key)
+            KEPT_STARTS.move_to_end(kept_key)
             self.batch.put_row(k, kept[0])
             self._pending[k] = key
             self._obs[k] = kept[1]
@@ -292,14 +297,21 @@ class SingleMoverVectorEnv(VectorEnv):
             values = [values] * self.num_envs
         if len(values) != self.num_envs:
             raise ValueError(f"set_attr needs one value or {self.num_envs} values, got {len(values)}")
-        self._synced()  # the copies' own state first; kept starts may no longer apply
-        self._kept.clear()
+        self._synced()  # the copies' own state first
         for env, value in zip(self.envs, values, strict=True):
             setattr(env, name, value)
+        self._settings = _settings_of(self.envs[0].par)  # kept starts follow the new settings
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # also when __init__ failed
             env.close()
+
+
+def _settings_of(par: Any) -> tuple[Any, ...]:
+    """Everything a copy's state after a reset depends on besides the episode seed and the horizon: the start
+    (:func:`~cv2x_marl.env.starts.start_key`) and every option the batch shares (``mover_batch._signature``:
+    rewards, observation layout, measurements)."""
+    return (*starts.start_key(par, 0)[:-1], *_signature(par))
 
 
 def _info_row(info: dict[str, Any]) -> list[float]:

@@ -305,3 +305,32 @@ def test_vector_env_pooled_resets_from_kept_starts_equal_the_envs_own_resets(ver
             assert par.measure.rng.bit_generator.state == ref.measure.rng.bit_generator.state
         assert par._np_random.bit_generator.state == ref._np_random.bit_generator.state
     vec.close()
+
+
+def test_kept_starts_are_keyed_by_every_option() -> None:
+    """Two vector envs whose options differ only in the measurement error share no kept start: the second
+    one's pooled resets equal its own single envs', not the first one's rows."""
+    from cv2x_marl.env.vector import KEPT_STARTS
+
+    common = {"start_pool": 2, "max_cycles": 2, "autoreset_mode": "SameStep", **FAST}
+    first = gym.make_vec("cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", **common)
+    first.reset(seed=[1, 2])
+    for _ in range(6):
+        first.step(np.zeros((2, 2)))
+    assert KEPT_STARTS
+    second = gym.make_vec(
+        "cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", rsrp_error_db=0.5, **common
+    )
+    refs = [SingleMoverEnvV3(start_pool=2, max_cycles=2, rsrp_error_db=0.5, **FAST) for _ in range(2)]
+    second.reset(seed=[1, 2])
+    for k, ref in enumerate(refs):
+        ref.reset(seed=1 + k)
+    for _ in range(6):
+        o, _r, _t, _trunc, _i = second.step(np.zeros((2, 2)))
+        for k, ref in enumerate(refs):
+            ro, _, _, rt, _ = ref.step(np.zeros(2))
+            if rt:
+                ro, _ = ref.reset()
+            assert np.array_equal(o[k], ro)
+    first.close()
+    second.close()
