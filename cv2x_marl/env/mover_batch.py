@@ -14,7 +14,9 @@ instead: the same step plus the shadowing field's row, the mover's column of lin
 (``tests/env/test_v3_fast.py``).
 
 Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
-:meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
+:meth:`MoverBatch.load` copies the copy's start into the stacks; :meth:`MoverBatch.row_of` /
+:meth:`MoverBatch.put_row` take those rows out and put them back (the vector env's kept starts of pooled
+resets, :data:`cv2x_marl.env.vector.KEPT_STARTS`). While a batch steps a copy, that
 copy's env object is not updated (its ``positions_m`` stay at the start): read the state from the
 batch (:attr:`MoverBatch.positions_m`) or call :meth:`MoverBatch.sync` first.
 
