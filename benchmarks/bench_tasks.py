@@ -11,7 +11,8 @@ actions drawn up front:
 Three settings each: ``steps`` (resets outside the clock: the step alone), ``resets`` (``start_pool=0``:
 every episode a fresh stage-1 run, inside the clock: ``SameStep`` autoreset for the vector env, a
 ``reset()`` every 100 steps for the parallel env) and ``pool64`` (``start_pool=64``, after one warm pass
-over the pool's 64 starts, so resets reuse the kept starts). Also the milliseconds per ``reset()`` of one
+over the pool's 64 starts, so resets reuse the kept starts; for the vector env also its kept rows, filled by
+pooled resets of a warm-up vector env). Also the milliseconds per ``reset()`` of one
 env (fresh seeds / from the warm pool). Best of ``--repeats`` (the machine may be shared: best-of-N is the
 least disturbed run). Writes ``benchmarks/results/bench_tasks.json``; ``docs/performance.md``
 ("Benchmark tasks (issue 27)") quotes it next to the targets (SingleMover-v3 K = 16 >= 50k agent-steps/s
@@ -55,14 +56,30 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def warm_pool(env_id: str) -> None:
-    """One reset per seed of the start pool: their starts are kept (process-wide cache)."""
+def warm_pool(env_id: str, copies: int = 16) -> None:
+    """One reset per seed of the start pool: their starts are kept (process-wide cache). For
+    ``SingleMover-v3`` also pooled resets of a K-copy vector env until every pool seed came once, so that
+    the vector env's kept starts (``cv2x_marl.env.vector.KEPT_STARTS``, process-wide) hold them all."""
+    import gymnasium
+
     from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.env.seeds import training_pool
+    from cv2x_marl.env.vector import KEPT_STARTS
 
     env = make_parallel_env(env_id, max_cycles=EPISODE, start_pool=POOL)
     for seed in training_pool(POOL):
         env.reset(seed=int(seed))
+    if env_id != "cv2x/SingleMover-v3":
+        return
+    envs: Any = gymnasium.make_vec(
+        env_id, num_envs=copies, vectorization_mode="vector_entry_point", max_cycles=EPISODE, start_pool=POOL
+    )
+    envs.reset(seed=0)
+    for _ in range(200):  # 16 draws each from 64 seeds: all of them long before 200 rounds
+        envs.reset()
+        if len(KEPT_STARTS) >= POOL:
+            break
+    envs.close()
 
 
 def single_mover(copies: int, steps: int, setting: str) -> float:
@@ -149,7 +166,7 @@ def main() -> None:
         "targets_agent_steps_per_s_with_resets": TARGETS,
     }
     for env_id in TARGETS:
-        warm_pool(env_id)
+        warm_pool(env_id, args.copies)
     for setting in ("steps", "resets", "pool64"):
         key = f"single_mover_v3_k{args.copies}_{setting}"
         rows[key] = max(single_mover(args.copies, args.steps, setting) for _ in range(args.repeats))

@@ -40,6 +40,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_period_into, set_state, state_of
+
 FloatArray = NDArray[np.float64]
 
 #: RSRP (dBm) at which the observation's scaled entry ``(rsrp_dbm - RSRP_REF_DBM) / RSRP_SCALE_DB`` is 0
@@ -115,10 +117,7 @@ class Measurements:
             np.zeros((n, n), dtype=np.int64),
         )
         uniform, fade, normal = (np.empty((window, n, n)) for _ in range(3))
-        for k in range(window):  # the stream's order: per period U, then Exp(1), then N(0, 1)
-            rng.random(out=uniform[k])
-            rng.standard_exponential(out=fade[k])
-            rng.standard_normal(out=normal[k])
+        _draw_window(rng, uniform, fade, normal)
         _start_window(
             state.power_mw, state.count, state.rsrp_dbm, state.age, np.ascontiguousarray(rx_dbm),
             np.ascontiguousarray(p), uniform, fade, normal, state.error_db,
@@ -150,6 +149,34 @@ class Measurements:
             np.ascontiguousarray(p), uniform, fade, normal, self.error_db, cols,
         )  # fmt: skip
         self.head = (self.head + 1) % self.window
+
+
+def _draw_window(rng: np.random.Generator, uniform: FloatArray, fade: FloatArray, normal: FloatArray) -> None:
+    """``W`` periods of :func:`draw_period` into ``uniform``, ``fade``, ``normal`` [W, N, N], in the stream's
+    order (per period U, then Exp(1), then N(0, 1)): compiled for a PCG64 stream (the env's: numpy's draws
+    bit for bit, :mod:`cv2x_marl.env.pcg64`), numpy's calls for any other bit generator."""
+    if rng.bit_generator.state.get("bit_generator") != "PCG64":
+        for k in range(uniform.shape[0]):
+            rng.random(out=uniform[k])
+            rng.standard_exponential(out=fade[k])
+            rng.standard_normal(out=normal[k])
+        return
+    state = state_of(rng)
+    _draw_window_pcg64(state, ZIGGURAT_U64, ZIGGURAT_F64, uniform, fade, normal)
+    set_state(rng, state)
+
+
+@njit(cache=True)
+def _draw_window_pcg64(
+    state: NDArray[np.uint64],
+    zig_u64: NDArray[np.uint64],
+    zig_f64: FloatArray,
+    uniform: FloatArray,
+    fade: FloatArray,
+    normal: FloatArray,
+) -> None:
+    for k in range(uniform.shape[0]):
+        draw_period_into(state, zig_u64, zig_f64, uniform[k], fade[k], normal[k])
 
 
 @njit(cache=True)

@@ -14,7 +14,9 @@ instead: the same step plus the shadowing field's row, the mover's column of lin
 (``tests/env/test_v3_fast.py``).
 
 Resets stay with the env objects (a stage-1 run, or the reset cache): after ``envs[k].reset``,
-:meth:`MoverBatch.load` copies the copy's start into the stacks. While a batch steps a copy, that
+:meth:`MoverBatch.load` copies the copy's start into the stacks; :meth:`MoverBatch.row_of` /
+:meth:`MoverBatch.put_row` take those rows out and put them back (the vector env's kept starts of pooled
+resets, :data:`cv2x_marl.env.vector.KEPT_STARTS`). While a batch steps a copy, that
 copy's env object is not updated (its ``positions_m`` stay at the start): read the state from the
 batch (:attr:`MoverBatch.positions_m`) or call :meth:`MoverBatch.sync` first.
 
@@ -32,7 +34,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step
-from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3
+from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3, _widened
 from cv2x_marl.env.observation import _observation_kernel
 from cv2x_marl.env.step import BASE_PREV, JAIN, N_SCALARS, PRR, PRR0, U0, U_BEST, U_NOW, U_PREV, U_START, U
 from cv2x_marl.sim import kernels
@@ -263,10 +265,7 @@ class MoverBatch:
         self.disp_m[k] = env._geometry.disp_m
         self.dist2_m2[k] = env._geometry.dist2_m2
         table = env._co_table
-        if table.shape[1] > self.co_table.shape[2]:
-            grown = np.full((self.k, self.n, table.shape[1]), -1, dtype=np.int64)
-            grown[:, :, : self.co_table.shape[2]] = self.co_table
-            self.co_table = grown
+        _widened(self, "co_table", table.shape[1], -1)
         self.co_table[k] = -1
         self.co_table[k, :, : table.shape[1]] = table
         self.target[k] = env.target
@@ -285,6 +284,38 @@ class MoverBatch:
             self.best_m[k] = env._best_m[i]
         if self.v3 is not None:
             self.v3.load(k, env, i)
+        self.loaded[k] = True
+
+    #: the per-copy stacks :meth:`load` fills (every entry of a copy's row), and those whose last axis grows
+    ROW_ARRAYS = (
+        "mover", "t", "positions_m", "start_m", "plan_m", "best_m", "disp_m", "dist2_m2", "co_table", "target", "p",
+        "los_row", "gain_row_db", "level_db", "scalars",
+    )  # fmt: skip
+    WIDE_ARRAYS: dict[str, float] = {"co_table": -1}  # noqa: RUF012 - a constant table
+
+    def row_of(self, k: int) -> dict[str, Any]:
+        """A copy of copy ``k``'s rows of every stack (:meth:`put_row` puts them back): what :meth:`load` wrote,
+        plus what the steps since then changed."""
+        row = {name: np.array(getattr(self, name)[k]) for name in self.ROW_ARRAYS}
+        if self.v3 is not None:
+            row.update({f"v3.{name}": np.array(getattr(self.v3, name)[k]) for name in self.v3.ROW_ARRAYS})
+        return row
+
+    def put_row(self, k: int, row: dict[str, Any]) -> None:
+        """Write rows taken by :meth:`row_of` (of this batch) into copy ``k``: the state :meth:`load` gave it
+        then, without the env object (a kept start: the same arrays, bit for bit)."""
+        if self._const is None:
+            raise RuntimeError("put_row needs a batch that has loaded a copy")
+        for key, value in row.items():
+            owner: Any = self.v3 if key.startswith("v3.") else self
+            name = key[3:] if key.startswith("v3.") else key
+            fill = owner.WIDE_ARRAYS.get(name)
+            if fill is not None:
+                stack = _widened(owner, name, value.shape[-1], fill)
+                stack[k] = fill
+                stack[k, ..., : value.shape[-1]] = value
+            else:
+                getattr(owner, name)[k] = value
         self.loaded[k] = True
 
     def step(
@@ -318,7 +349,6 @@ class MoverBatch:
         info = np.zeros((self.k, 8))
         (period, wb1, range2, model, per_sinr, per, thr, sens, *opts) = self._const
         if self.v3 is not None:
-            self.v3.draw_periods(self.envs, mask)
             _mover_steps_v3(  # type: ignore[call-arg]
                 mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
                 self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,

@@ -3,7 +3,9 @@
 :class:`~cv2x_marl.env.mover_batch.MoverBatch` steps K one-mover copies in one compiled call. With
 observation version 3 a step also reads the shadowing field where the mover now stands (its row and
 column), takes one period of measurements (the draws of every pair from each copy's ``measurement``
-stream, drawn in Python in :func:`draw_periods`; the mover's column of reports updated) and builds the
+stream, drawn inside the compiled step by :func:`cv2x_marl.env.pcg64.draw_column_into`: numpy's ``PCG64``
+draws bit for bit, the copy's generator state kept in :attr:`V3Stacks.rng_state` and written back into its
+``numpy.random.Generator`` by :meth:`V3Stacks.sync`; the mover's column of reports updated) and builds the
 measured and own v3 entries. :class:`V3Stacks` holds that per-copy state; :func:`_mover_steps_v3` is
 ``MobilityEnv.step_mover`` for K copies: the same compiled functions in the same order (the field's
 :func:`~cv2x_marl.sim.kernels.field.pair_field_db`, :func:`~cv2x_marl.sim.kernels.mover_column`, the
@@ -22,13 +24,25 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step
 from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
 from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
+from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_column_into, jump_table, set_state, state_of
 from cv2x_marl.sim.kernels import mover_column
-from cv2x_marl.sim.kernels.field import field_row_into
+from cv2x_marl.sim.kernels.field import field_pairs_row_into, gather_mover_pairs
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 FloatArray = NDArray[np.float64]
+
+
+def _widened(owner: Any, name: str, width: int, fill: float) -> NDArray[Any]:
+    """Stack ``name`` of ``owner`` [K, ..., G], its last axis grown to at least ``width`` (new entries ``fill``)."""
+    stack = getattr(owner, name)
+    if width > stack.shape[-1]:
+        grown = np.full((*stack.shape[:-1], width), fill, dtype=stack.dtype)
+        grown[..., : stack.shape[-1]] = stack
+        setattr(owner, name, grown)
+        stack = grown
+    return stack
 
 
 class V3Stacks:
@@ -51,6 +65,9 @@ class V3Stacks:
         self.uniform = np.zeros((k, n, n))
         self.fade = np.zeros((k, n, n))
         self.normal = np.zeros((k, n, n))
+        #: each copy's ``measurement`` stream: its PCG64 state (:func:`cv2x_marl.env.pcg64.state_of`)
+        self.rng_state = np.zeros((k, 4), dtype=np.uint64)
+        self.jumps = jump_table(n)
         self.los = np.zeros((k, n, n), dtype=bool)
         self.gain_col_db = np.zeros((k, n))
         self.shadow_col_db = np.zeros((k, n))
@@ -60,16 +77,26 @@ class V3Stacks:
         self.sub_frac = np.zeros((k, n))
         self.horizon = np.ones(k, dtype=np.int64)
         w = 1
+        # the field of each copy's mover pairs, by the other end (kernels.field.gather_mover_pairs)
         self.f_start = np.zeros((k, n, 2))
-        self.f_shadow0 = np.zeros((k, n, n))
-        self.f_sigma = np.zeros((k, n, n))
-        self.f_k_lo = np.zeros((k, n, n, w, 2))
-        self.f_k_hi = np.zeros((k, n, n, w, 2))
-        self.f_phase = np.zeros((k, n, n, w))
-        self.f_g0 = np.zeros((k, n, n))
+        self.f_shadow0 = np.zeros((k, n))
+        self.f_sigma = np.zeros((k, n))
+        self.f_k_lo = np.zeros((k, n, w, 2))
+        self.f_k_hi = np.zeros((k, n, w, 2))
+        self.f_phase = np.zeros((k, n, w))
+        self.f_g0 = np.zeros((k, n))
         self.decorrelation_m = 1.0
         self.eirp_dbm = 0.0
         self.noise_mw = 0.0
+
+    #: the per-copy stacks :meth:`load` fills (every entry of a copy's row; ``MoverBatch.row_of``), and those
+    #: whose last axis grows (with their fill)
+    ROW_ARRAYS = (
+        "power_mw", "count", "head", "rsrp_dbm", "age", "rng_state", "rx_dbm", "los", "gain_col_db", "shadow_col_db",
+        "idx", "val", "slot_frac", "sub_frac", "horizon", "f_start", "f_shadow0", "f_sigma", "f_k_lo", "f_k_hi",
+        "f_phase", "f_g0",
+    )  # fmt: skip
+    WIDE_ARRAYS: dict[str, float] = {"idx": -1, "val": 0.0}  # noqa: RUF012 - a constant table
 
     def load(self, k: int, env: MobilityEnv, mover: int) -> None:
         """Copy env copy ``k``'s v3 state (just after its reset) into the stacks."""
@@ -79,6 +106,7 @@ class V3Stacks:
         self.head[k] = m.head
         self.rsrp_dbm[k] = m.rsrp_dbm
         self.age[k] = m.age
+        self.rng_state[k] = state_of(m.rng)
         self.rx_dbm[k] = env._rx_dbm
         links = env.links
         args = links._kernel_args
@@ -86,12 +114,8 @@ class V3Stacks:
         self.noise_mw = float(links.noise_mw)
         self.los[k] = args[1]
         idx, val = args[5], args[6]
-        if idx.shape[1] > self.idx.shape[2]:
-            grown_i = np.full((self.k, self.n, idx.shape[1]), -1, dtype=np.int64)
-            grown_v = np.zeros((self.k, self.n, idx.shape[1]))
-            grown_i[:, :, : self.idx.shape[2]] = self.idx
-            grown_v[:, :, : self.val.shape[2]] = self.val
-            self.idx, self.val = grown_i, grown_v
+        _widened(self, "idx", idx.shape[1], -1)
+        _widened(self, "val", val.shape[1], 0.0)
         self.idx[k] = -1
         self.val[k] = 0.0
         self.idx[k, :, : idx.shape[1]] = idx
@@ -106,28 +130,17 @@ class V3Stacks:
         field = links.field
         if self.has_field:
             assert field is not None
-            if self.f_phase.shape[3] != field.phase.shape[-1]:
+            if self.f_phase.shape[2] != field.phase.shape[-1]:
                 w = field.phase.shape[-1]
-                self.f_k_lo = np.zeros((self.k, self.n, self.n, w, 2))
-                self.f_k_hi = np.zeros((self.k, self.n, self.n, w, 2))
-                self.f_phase = np.zeros((self.k, self.n, self.n, w))
+                self.f_k_lo = np.zeros((self.k, self.n, w, 2))
+                self.f_k_hi = np.zeros((self.k, self.n, w, 2))
+                self.f_phase = np.zeros((self.k, self.n, w))
             self.f_start[k] = field.start_m
-            self.f_shadow0[k] = field.shadow0_db
-            self.f_sigma[k] = field.sigma_db
-            self.f_k_lo[k] = field.k_lo
-            self.f_k_hi[k] = field.k_hi
-            self.f_phase[k] = field.phase
-            self.f_g0[k] = field.g0
+            gather_mover_pairs(
+                mover, field.shadow0_db, field.sigma_db, field.k_lo, field.k_hi, field.phase, field.g0,
+                self.f_shadow0[k], self.f_sigma[k], self.f_k_lo[k], self.f_k_hi[k], self.f_phase[k], self.f_g0[k],
+            )  # fmt: skip
             self.decorrelation_m = float(field.decorrelation_m)
-
-    def draw_periods(self, envs: list[MobilityEnv], active: NDArray[np.bool_]) -> None:
-        """One period's draws of every pair for each active copy, from its ``measurement`` stream, in the
-        order of :meth:`~cv2x_marl.env.measurement.Measurements.update`."""
-        for k in np.flatnonzero(active):
-            rng = envs[k].measure.rng
-            rng.random(out=self.uniform[k])
-            rng.standard_exponential(out=self.fade[k])
-            rng.standard_normal(out=self.normal[k])
 
     def kernel_args(self) -> tuple[Any, ...]:
         """The stacks in :func:`_mover_steps_v3`'s order (after the arguments of ``_mover_steps``)."""
@@ -136,7 +149,8 @@ class V3Stacks:
             self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db,
             self.shadow_col_db,
             self.idx, self.val, self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, self.rx_dbm,
-            self.uniform, self.fade, self.normal, self.error_db, self.slot_frac, self.sub_frac, self.horizon,
+            self.uniform, self.fade, self.normal, self.rng_state, self.jumps, ZIGGURAT_U64, ZIGGURAT_F64,
+            self.error_db, self.slot_frac, self.sub_frac, self.horizon,
         )  # fmt: skip
 
     def sync(self, k: int, env: MobilityEnv) -> None:
@@ -147,6 +161,7 @@ class V3Stacks:
         m.head = int(self.head[k])
         m.rsrp_dbm = self.rsrp_dbm[k].copy()
         m.age = self.age[k].copy()
+        set_state(m.rng, self.rng_state[k])
         env._rx_dbm = self.rx_dbm[k].copy()
 
 
@@ -226,6 +241,10 @@ def _mover_steps_v3(
     uniform: FloatArray,
     fade: FloatArray,
     normal: FloatArray,
+    rng_state: NDArray[np.uint64],
+    jumps: NDArray[np.uint64],
+    zig_u64: NDArray[np.uint64],
+    zig_f64: FloatArray,
     error_db: float,
     slot_frac: FloatArray,
     sub_frac: FloatArray,
@@ -238,9 +257,12 @@ def _mover_steps_v3(
     """Step every ``active`` copy k of observation version 3: ``MobilityEnv.step_mover(actions[k])``, in place.
 
     The arguments up to ``model_p_min`` as :func:`cv2x_marl.env.mover_batch._mover_steps`; then
-    :meth:`V3Stacks.kernel_args` (field arrays [K, ...] of :class:`~cv2x_marl.sim.shadow_field.ShadowField`,
-    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], this period's draws
-    [K, N, N], the neighbours' resource fractions [K, N], the horizon [K]); then the outputs.
+    :meth:`V3Stacks.kernel_args` (the field arrays of each copy's mover pairs, [K, N, ...], as
+    :func:`~cv2x_marl.sim.kernels.field.gather_mover_pairs` gives them,
+    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], scratch for this
+    period's draws [K, N, N] (column ``mover[k]`` written), the PCG64 states [K, 4] of the copies' measurement
+    streams with :func:`~cv2x_marl.env.pcg64.jump_table` and the ziggurat tables, the neighbours' resource
+    fractions [K, N], the horizon [K]); then the outputs.
     """
     n_copies = actions.shape[0]
     n = positions_m.shape[1]
@@ -273,7 +295,7 @@ def _mover_steps_v3(
         t[k] += 1
         # the own links' gains where the mover stands: the field's row (MoverLinksStep), or the snapshot's
         if has_field:
-            field_row_into(
+            field_pairs_row_into(
                 x, y, pos, i, f_start[k], f_shadow0[k], f_sigma[k], decorrelation_m, f_k_lo[k], f_k_hi[k],
                 f_phase[k], f_g0[k], shadow,
             )  # fmt: skip
@@ -299,6 +321,8 @@ def _mover_steps_v3(
             p[k, j, i] = p_col[j]
             rx_dbm[k, j, i] = rx_col[j]
         rows[0] = i
+        # this period's draws of every pair from the copy's measurement stream (Measurements.update's order)
+        draw_column_into(rng_state[k], jumps, zig_u64, zig_f64, i, uniform[k], fade[k], normal[k])
         _update_columns(
             power_mw[k], count[k], head[k], rsrp_dbm[k], age[k], rx_dbm[k], p[k], uniform[k], fade[k], normal[k],
             error_db, rows,

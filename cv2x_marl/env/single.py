@@ -50,10 +50,7 @@ class SingleMoverEnv(gym.Env):
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
             raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
         super().reset(seed=None if seed is None else int(seed))
-        limit = (
-            self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
-        )
-        self.par.horizon = self.par.max_cycles if limit is None else min(self.par.max_cycles, int(limit))
+        self.par.horizon = self.horizon_in_force()
         if seed is None and self.par.start_pool:  # a start from the pool, drawn by the parallel env's generator
             if self.par._np_random is None:  # seeded from this env's generator (itself from OS entropy)
                 self.par._np_random = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
@@ -62,6 +59,14 @@ class SingleMoverEnv(gym.Env):
             episode_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
             obs, infos = self.par.reset(seed=episode_seed)
         return obs[AGENT], infos[AGENT]
+
+    def horizon_in_force(self) -> int:
+        """The episode's horizon (steps) the observation's time left counts down from: ``max_cycles``, or a
+        shorter Gymnasium ``TimeLimit`` (``spec.max_episode_steps`` or :attr:`time_limit`)."""
+        limit = (
+            self.time_limit if self.spec is None or self.spec.max_episode_steps is None else self.spec.max_episode_steps
+        )
+        return int(self.par.max_cycles if limit is None else min(self.par.max_cycles, int(limit)))
 
     def step(self, action: Any) -> tuple[NDArray, float, bool, bool, dict]:
         if self.fast:  # vehicle 0 alone: bit-identical to the full step (tested), several times faster

@@ -17,6 +17,13 @@ API like ``SyncVectorEnv`` over the same single-agent envs, and gives the same r
 * infos: every key of the single env's info (:data:`~cv2x_marl.env.mobility_env.INFO_KEYS`) as an
   array over the copies, with its ``_key`` mask.
 
+With ``start_pool`` the batched vector envs keep (:data:`KEPT_STARTS`, process-wide), per pooled episode
+seed, the batch's rows right after that start's reset: a later autoreset (or ``reset()`` without a seed)
+drawing the same seed copies them back into the batch (a few array copies) and the copy's env object runs
+its own reset only when it is read (``call``, ``get_attr``, ``set_attr``, ``render``); the results are the
+same bit for bit (``tests/env/test_v3_fast.py``). Read the copies through those methods, not through
+:attr:`envs` directly.
+
 Steps go through :class:`~cv2x_marl.env.mover_batch.MoverBatch` (one numba call for all copies) when the
 env options allow it (:func:`~cv2x_marl.env.mover_batch.batch_problem`: no rendering, no
 ``replan_every``, WINNER+ B1 links); otherwise through each copy's own ``step`` (the same results,
@@ -25,6 +32,7 @@ a loop over copies), and :attr:`SingleMoverVectorEnv.batched` says which.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from typing import Any, ClassVar
 
 import numpy as np
@@ -33,11 +41,18 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from cv2x_marl.checks import is_int
+from cv2x_marl.env import starts
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
-from cv2x_marl.env.mover_batch import MoverBatch, batch_problem, refuse_episode_method
-from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2, SingleMoverEnvV3
+from cv2x_marl.env.mover_batch import MoverBatch, _signature, batch_problem, refuse_episode_method
+from cv2x_marl.env.single import AGENT, SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2, SingleMoverEnvV3
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
+
+#: pooled resets of the batched vector envs (``start_pool``), process-wide like
+#: :data:`~cv2x_marl.env.starts.START_CACHE`: (the settings of :func:`~cv2x_marl.env.starts.start_key`, episode
+#: seed, horizon) -> the batch's rows (``MoverBatch.row_of``), the observation and the info right after that
+#: start's reset; oldest first, bounded like the start cache
+KEPT_STARTS: OrderedDict[tuple[Any, ...], tuple[dict[str, Any], NDArray[np.float32], dict[str, Any]]] = OrderedDict()
 
 
 class SingleMoverVectorEnv(VectorEnv):
@@ -90,6 +105,11 @@ class SingleMoverVectorEnv(VectorEnv):
         self._obs = np.zeros((self.num_envs, self.envs[0].par.layout.size), dtype=np.float32)
         self._ended = np.zeros(self.num_envs, dtype=bool)
         self._started = np.zeros(self.num_envs, dtype=bool)
+        #: what a kept start depends on besides its seed and horizon (:data:`KEPT_STARTS`)
+        self._settings = _settings_of(self.envs[0].par)
+        #: per copy: the (episode seed, horizon) whose reset its env object has not run yet (None: it has)
+        self._pending: list[tuple[int, int] | None] = [None] * self.num_envs
+        self._last_info: dict[str, Any] = {}  # the info of the last reset run by _run_reset
 
     @property
     def batched(self) -> bool:
@@ -98,13 +118,60 @@ class SingleMoverVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ reset
     def _reset_copy(self, k: int, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        if seed is None and options is None and self.batch is not None and self.envs[k].par.start_pool:
+            return self._pool_reset(k)
         obs, info = self.envs[k].reset(seed=seed, options=options)
+        self._pending[k] = None
         if self.batch is not None:
             self.batch.load(k)
         self._obs[k] = obs
         self._ended[k] = False
         self._started[k] = True
         return info
+
+    def _pool_reset(self, k: int) -> dict[str, Any]:
+        """``envs[k].reset()`` from the start pool, through the batch: the episode seed drawn as
+        :meth:`SingleMoverEnv.reset` draws it; the first time a (seed, horizon) comes, the copy's env is reset
+        with it and the batch's rows, observation and info are kept; later, they are copied back into the
+        batch and the env object's own reset waits until someone reads the copy (:meth:`_synced`). Bit for bit
+        what the env's reset and :meth:`MoverBatch.load` give (tested)."""
+        assert self.batch is not None
+        env = self.envs[k]
+        par = env.par
+        horizon = env.horizon_in_force()
+        if par._np_random is None:  # as SingleMoverEnv.reset: seeded from the env's generator
+            par._np_random = np.random.default_rng(int(env.np_random.integers(0, 2**63 - 1)))
+        episode_seed = starts.pool_seed(par, par._np_random)
+        key = (episode_seed, horizon)
+        kept_key = (self._settings, episode_seed, horizon)
+        kept = KEPT_STARTS.get(kept_key) if self.batch.loaded.any() else None
+        if kept is None:
+            self._run_reset(k, key)
+            self.batch.load(k)
+            kept = (self.batch.row_of(k), self._obs[k].copy(), self._last_info)
+            KEPT_STARTS[kept_key] = kept
+            while len(KEPT_STARTS) > starts.cache_size(par):
+                KEPT_STARTS.popitem(last=False)
+        else:
+            KEPT_STARTS.move_to_end(kept_key)
+            self.batch.put_row(k, kept[0])
+            self._pending[k] = key
+            self._obs[k] = kept[1]
+        self._ended[k] = False
+        self._started[k] = True
+        return dict(kept[2])
+
+    def _run_reset(self, k: int, key: tuple[int, int]) -> None:
+        """Reset copy ``k``'s env object to episode seed ``key[0]`` with horizon ``key[1]`` as a ``reset()``
+        that drew that seed from the pool does (the pool's generator left as it is)."""
+        par = self.envs[k].par
+        generator = par._np_random
+        par.horizon = key[1]
+        obs, infos = par.reset(seed=key[0])
+        par._np_random = generator
+        self._obs[k] = obs[AGENT]
+        self._last_info = infos[AGENT]
+        self._pending[k] = None
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
@@ -197,6 +264,11 @@ class SingleMoverVectorEnv(VectorEnv):
         """The copies with the batch's state written back into them (what their methods then see)."""
         if self.batch is not None:
             for k in np.flatnonzero(self._started):
+                key = self._pending[k]
+                if key is not None:  # a kept start: the env object's own reset, then the batch's state
+                    obs = self._obs[k].copy()
+                    self._run_reset(int(k), key)
+                    self._obs[k] = obs
                 self.batch.sync(int(k))
         return self.envs
 
@@ -225,12 +297,21 @@ class SingleMoverVectorEnv(VectorEnv):
             values = [values] * self.num_envs
         if len(values) != self.num_envs:
             raise ValueError(f"set_attr needs one value or {self.num_envs} values, got {len(values)}")
+        self._synced()  # the copies' own state first
         for env, value in zip(self.envs, values, strict=True):
             setattr(env, name, value)
+        self._settings = _settings_of(self.envs[0].par)  # kept starts follow the new settings
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # also when __init__ failed
             env.close()
+
+
+def _settings_of(par: Any) -> tuple[Any, ...]:
+    """Everything a copy's state after a reset depends on besides the episode seed and the horizon: the start
+    (:func:`~cv2x_marl.env.starts.start_key`) and every option the batch shares (``mover_batch._signature``:
+    rewards, observation layout, measurements)."""
+    return (*starts.start_key(par, 0)[:-1], *_signature(par))
 
 
 def _info_row(info: dict[str, Any]) -> list[float]:

@@ -171,6 +171,8 @@ def test_single_mover_v3_takes_the_fast_path_and_the_vector_env_is_batched() -> 
         par = copies[k].par
         assert np.array_equal(par.state()[: 6 * par.n], ref.par.state()[: 6 * par.n])
         assert np.array_equal(par.measure.rsrp_dbm[:, 0], ref.par.measure.rsrp_dbm[:, 0], equal_nan=True)
+        # the draws made inside the compiled step (env/pcg64.py) left the copy's stream where numpy's leaves it
+        assert par.measure.rng.bit_generator.state == ref.par.measure.rng.bit_generator.state
     vec.close()
 
 
@@ -258,3 +260,77 @@ def test_gymnasium_env_and_vector_env_draw_resets_from_the_start_pool() -> None:
         vec.step(np.zeros((2, 2), dtype=np.float32))
     assert {e.par.seed_used for e in vec.unwrapped.envs} <= pool
     vec.close()
+
+
+@pytest.mark.parametrize("version", [0, 2, 3])
+def test_vector_env_pooled_resets_from_kept_starts_equal_the_envs_own_resets(version: int) -> None:
+    """Pooled autoresets of the batched vector env copy kept rows (SingleMoverVectorEnv._pool_reset) instead of
+    running each copy's reset: observations, rewards, infos and final observations equal independent
+    ``SingleMover-v3`` envs resetting from the same pool, bit for bit, and once read (``get_attr``) the copies'
+    env objects equal theirs (seed, positions, measurements, both generators)."""
+    k_count, pool, cycles = 3, 4, 3
+    vec = gym.make_vec(
+        f"cv2x/SingleMover-v{version}", num_envs=k_count, vectorization_mode="vector_entry_point", start_pool=pool,
+        max_cycles=cycles, autoreset_mode="SameStep", **FAST,
+    )  # fmt: skip
+    assert vec.unwrapped.batched
+    refs = [gym.make(f"cv2x/SingleMover-v{version}", start_pool=pool, max_cycles=cycles, **FAST).unwrapped
+            for _ in range(k_count)]  # fmt: skip
+    obs, _ = vec.reset(seed=[21, 22, 23])
+    for k, ref in enumerate(refs):
+        assert np.array_equal(obs[k], ref.reset(seed=21 + k)[0])
+    rng = np.random.default_rng(4)
+    copied = 0
+    for _ in range(16):
+        act = rng.uniform(-1.2, 1.2, (k_count, 2))
+        o, r, _term, trunc, info = vec.step(act)
+        for k, ref in enumerate(refs):
+            ro, rr, _, rt, ri = ref.step(act[k])
+            assert r[k] == rr and trunc[k] == rt
+            if rt:
+                assert np.array_equal(info["final_obs"][k], ro)
+                assert [info["final_info"][key][k] for key in INFO_KEYS] == [ri[key] for key in INFO_KEYS]
+                ro, ri = ref.reset()
+            assert np.array_equal(o[k], ro)
+            assert [info[key][k] for key in INFO_KEYS] == [ri[key] for key in INFO_KEYS]
+        copied += sum(p is not None for p in vec.unwrapped._pending)
+    assert copied > 0  # kept starts were copied, not recomputed
+    for k, par in enumerate(vec.get_attr("par")):
+        ref = refs[k].par
+        assert par.seed_used == ref.seed_used and par.t == ref.t
+        assert np.array_equal(par.positions_m, ref.positions_m)
+        if version == 3:
+            assert np.array_equal(par.measure.rsrp_dbm, ref.measure.rsrp_dbm, equal_nan=True)
+            assert np.array_equal(par.measure.power_mw, ref.measure.power_mw)
+            assert par.measure.rng.bit_generator.state == ref.measure.rng.bit_generator.state
+        assert par._np_random.bit_generator.state == ref._np_random.bit_generator.state
+    vec.close()
+
+
+def test_kept_starts_are_keyed_by_every_option() -> None:
+    """Two vector envs whose options differ only in the measurement error share no kept start: the second
+    one's pooled resets equal its own single envs', not the first one's rows."""
+    from cv2x_marl.env.vector import KEPT_STARTS
+
+    common = {"start_pool": 2, "max_cycles": 2, "autoreset_mode": "SameStep", **FAST}
+    first = gym.make_vec("cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", **common)
+    first.reset(seed=[1, 2])
+    for _ in range(6):
+        first.step(np.zeros((2, 2)))
+    assert KEPT_STARTS
+    second = gym.make_vec(
+        "cv2x/SingleMover-v3", num_envs=2, vectorization_mode="vector_entry_point", rsrp_error_db=0.5, **common
+    )
+    refs = [SingleMoverEnvV3(start_pool=2, max_cycles=2, rsrp_error_db=0.5, **FAST) for _ in range(2)]
+    second.reset(seed=[1, 2])
+    for k, ref in enumerate(refs):
+        ref.reset(seed=1 + k)
+    for _ in range(6):
+        o, _r, _t, _trunc, _i = second.step(np.zeros((2, 2)))
+        for k, ref in enumerate(refs):
+            ro, _, _, rt, _ = ref.step(np.zeros(2))
+            if rt:
+                ro, _ = ref.reset()
+            assert np.array_equal(o[k], ro)
+    first.close()
+    second.close()

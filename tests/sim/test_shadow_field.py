@@ -307,3 +307,33 @@ def test_rows_on_a_search_grid_use_the_lattice_and_equal_row_db() -> None:
     scattered = pos[3] + np.random.default_rng(0).uniform(-50.0, 50.0, size=(100, 2))
     assert square_lattice(scattered) is None
     assert np.array_equal(field.rows_db(3, pos, scattered), field.row_db(3, pos, scattered))
+
+
+def test_gathered_mover_pairs_and_their_row_equal_the_full_field() -> None:
+    """gather_mover_pairs against numpy fancy indexing (pair (min, max) by the other end), and the row from
+    the gathered arrays equal to row ``mover`` of the compiled full field bit for bit (same pair_field_db calls)."""
+    from cv2x_marl.sim.kernels.field import field_pairs_row_into, field_shadow_db, gather_mover_pairs
+
+    field, start = _draw(9, 5, 0.4)
+    n, w = field.n, field.phase.shape[-1]
+    rng = np.random.default_rng(8)
+    pos = start + rng.uniform(-30.0, 30.0, size=start.shape)
+    for mover in (0, 4, 8):
+        outs = (np.empty(n), np.empty(n), np.empty((n, w, 2)), np.empty((n, w, 2)), np.empty((n, w)), np.empty(n))
+        gather_mover_pairs(
+            mover, field.shadow0_db, field.sigma_db, field.k_lo, field.k_hi, field.phase, field.g0, *outs
+        )
+        others = np.array([j for j in range(n) if j != mover])
+        lo, hi = np.minimum(mover, others), np.maximum(mover, others)
+        refs = (field.shadow0_db, field.sigma_db, field.k_lo, field.k_hi, field.phase, field.g0)
+        for got, full in zip(outs, refs, strict=True):
+            assert np.array_equal(got[others], full[lo, hi])
+            assert (got[mover] == 0.0).all()
+        row = np.empty(n)
+        x, y = pos[mover] + np.array([12.5, -3.0])
+        field_pairs_row_into(x, y, pos, mover, field.start_m, outs[0], outs[1], field.decorrelation_m, *outs[2:], row)
+        moved = pos.copy()
+        moved[mover] = (x, y)
+        full_row = field_shadow_db(moved, field.start_m, field.shadow0_db, field.sigma_db, field.decorrelation_m,
+                                   field.k_lo, field.k_hi, field.phase, field.g0)[mover]  # fmt: skip
+        assert np.array_equal(row, full_row)

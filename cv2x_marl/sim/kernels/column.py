@@ -84,10 +84,11 @@ def _kernel_rx_dbm(
     gain_col_db: FloatArray,
     wb1: FloatArray,
     range2_m2: float,
-) -> float:
+) -> tuple[float, float]:
     """Received power (dBm) at the mover (at ``(cx, cy)``) of transmitter ``c``, as
     :func:`cv2x_marl.sim.kernels.snapshot_links` computes it: the pair's displacement from the lower to
-    the higher index, ``los[lower, higher]``, ``gain[c, mover] - PL``; -inf beyond the cut-off."""
+    the higher index, ``los[lower, higher]``, ``gain[c, mover] - PL``; -inf beyond the cut-off. Also the
+    path loss PL (dB; nan beyond the cut-off, where it is not computed)."""
     lo = min(c, mover)
     hi = max(c, mover)
     if c < mover:
@@ -101,9 +102,9 @@ def _kernel_rx_dbm(
     if period_m[1] < np.inf:
         dy -= period_m[1] * np.rint(dy / period_m[1])
     if not dx * dx + dy * dy <= range2_m2:
-        return -np.inf
+        return -np.inf, np.nan
     pl = winner_b1_pair_db(dx, dy, los[lo, hi], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
-    return gain_col_db[c] - pl
+    return gain_col_db[c] - pl, pl
 
 
 @njit(cache=True)
@@ -150,11 +151,14 @@ def mover_column(
     rx = np.empty(n)
     at_mover_dbm = np.empty(n)  # snapshot_links' rx_dbm[c, mover] and rx_mw[c, mover], each computed once
     at_mover_mw = np.zeros(n)
+    pl_pair = np.empty(n)  # the pair's WINNER+ B1 loss from the first loop (nan: not computed)
     for c in range(n):
         if c == mover:
             at_mover_dbm[c] = -np.inf
             continue
-        at_mover_dbm[c] = _kernel_rx_dbm(cx, cy, positions_m, mover, c, period_m, los, gain_col_db, wb1, range2_m2)
+        at_mover_dbm[c], pl_pair[c] = _kernel_rx_dbm(
+            cx, cy, positions_m, mover, c, period_m, los, gain_col_db, wb1, range2_m2
+        )
         at_mover_mw[c] = math.exp(at_mover_dbm[c] * _DB_TO_NEPER)
     for j in range(n):
         if j == mover:
@@ -162,7 +166,14 @@ def mover_column(
             continue
         dx = _fold(cx - positions_m[j, 0], period_m[0])
         dy = _fold(cy - positions_m[j, 1], period_m[1])
-        pl = winner_b1_pair_db(dx, dy, los[j, mover], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
+        # the same pair's loss as in the first loop where its LOS state is the same: the displacement there
+        # is this one or its negative (folded alike), and the loss depends on |dx|, |dy| alone
+        lo = min(j, mover)
+        hi = max(j, mover)
+        if los[j, mover] == los[lo, hi] and not np.isnan(pl_pair[j]):
+            pl = pl_pair[j]
+        else:
+            pl = winner_b1_pair_db(dx, dy, los[j, mover], wb1[0], wb1[1], wb1[2], wb1[3], wb1[4], wb1[5])
         rx[j] = (eirp_dbm - pl) - shadow_col_db[j]
         if range2_m2 < np.inf and not dx * dx + dy * dy <= range2_m2:
             rx[j] = -np.inf

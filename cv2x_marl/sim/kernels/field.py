@@ -90,13 +90,53 @@ def field_shadow_db(
 
 
 @njit(cache=True)
-def field_row_into(
+def gather_mover_pairs(
+    mover: int,
+    shadow0_db: FloatArray,
+    sigma_db: FloatArray,
+    k_lo: FloatArray,
+    k_hi: FloatArray,
+    phase: FloatArray,
+    g0: FloatArray,
+    s0_out: FloatArray,
+    sigma_out: FloatArray,
+    k_lo_out: FloatArray,
+    k_hi_out: FloatArray,
+    phase_out: FloatArray,
+    g0_out: FloatArray,
+) -> None:
+    """The field arrays of ``mover``'s pairs, by the other end ``j``: entry ``j`` of each output is the pair
+    ``(min(mover, j), max(mover, j))``'s (``s0_out``, ``sigma_out``, ``g0_out`` [N]; ``k_lo_out``,
+    ``k_hi_out`` [N, W, 2]; ``phase_out`` [N, W]; zeros at ``j = mover``). Inputs as
+    :class:`~cv2x_marl.sim.shadow_field.ShadowField`'s ([N, N], [N, N, W, 2], [N, N, W])."""
+    n = shadow0_db.shape[0]
+    for j in range(n):
+        if j == mover:
+            s0_out[j] = 0.0
+            sigma_out[j] = 0.0
+            g0_out[j] = 0.0
+            k_lo_out[j] = 0.0
+            k_hi_out[j] = 0.0
+            phase_out[j] = 0.0
+            continue
+        a = min(mover, j)
+        b = max(mover, j)
+        s0_out[j] = shadow0_db[a, b]
+        sigma_out[j] = sigma_db[a, b]
+        g0_out[j] = g0[a, b]
+        k_lo_out[j] = k_lo[a, b]
+        k_hi_out[j] = k_hi[a, b]
+        phase_out[j] = phase[a, b]
+
+
+@njit(cache=True)
+def field_pairs_row_into(
     cx: float,
     cy: float,
     positions_m: FloatArray,
     mover: int,
     start_m: FloatArray,
-    shadow0_db: FloatArray,
+    s0_db: FloatArray,
     sigma_db: FloatArray,
     decorrelation_m: float,
     k_lo: FloatArray,
@@ -106,8 +146,9 @@ def field_row_into(
     out: FloatArray,
 ) -> None:
     """Into ``out`` [N]: the shadowing of ``mover``'s links with it at ``(cx, cy)`` (m), every other vehicle
-    at ``positions_m`` [N, 2] (its own row there is ignored); 0 at ``mover``. Equal to row ``mover`` of
-    :func:`field_shadow_db` with the mover there (the same arithmetic)."""
+    at ``positions_m`` [N, 2] (its own row there is ignored); 0 at ``mover``. The pair arrays are
+    :func:`gather_mover_pairs`' (indexed by the other end). Equal to row ``mover`` of :func:`field_shadow_db`
+    with the mover there (the same :func:`pair_field_db` calls, the lower index's displacement first)."""
     n = positions_m.shape[0]
     mx = cx - start_m[mover, 0]
     my = cy - start_m[mover, 1]
@@ -117,18 +158,14 @@ def field_row_into(
             continue
         jx = positions_m[j, 0] - start_m[j, 0]
         jy = positions_m[j, 1] - start_m[j, 1]
-        a = min(mover, j)
-        b = max(mover, j)
         if mover < j:
             out[j] = pair_field_db(
-                mx, my, jx, jy, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                phase[a, b], g0[a, b],
-            )  # fmt: skip
+                mx, my, jx, jy, s0_db[j], sigma_db[j], decorrelation_m, k_lo[j], k_hi[j], phase[j], g0[j]
+            )
         else:
             out[j] = pair_field_db(
-                jx, jy, mx, my, shadow0_db[a, b], sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b],
-                phase[a, b], g0[a, b],
-            )  # fmt: skip
+                jx, jy, mx, my, s0_db[j], sigma_db[j], decorrelation_m, k_lo[j], k_hi[j], phase[j], g0[j]
+            )
 
 
 @njit(cache=True)
@@ -145,14 +182,24 @@ def field_row_db(
     phase: FloatArray,
     g0: FloatArray,
 ) -> FloatArray:
-    """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m): :func:`field_row_into`
-    per candidate; 0 in column ``mover``."""
+    """[M, N] shadowing of ``mover``'s links with it at each candidate [M, 2] (m): the mover's pairs
+    gathered once (:func:`gather_mover_pairs`), then :func:`field_pairs_row_into` per candidate; 0 in
+    column ``mover``."""
     m_count = candidates_m.shape[0]
-    out = np.zeros((m_count, positions_m.shape[0]))
+    n = positions_m.shape[0]
+    w = phase.shape[-1]
+    s0 = np.empty(n)
+    sig = np.empty(n)
+    kl = np.empty((n, w, 2))
+    kh = np.empty((n, w, 2))
+    ph = np.empty((n, w))
+    g = np.empty(n)
+    gather_mover_pairs(mover, shadow0_db, sigma_db, k_lo, k_hi, phase, g0, s0, sig, kl, kh, ph, g)
+    out = np.zeros((m_count, n))
     for m in range(m_count):
-        field_row_into(
-            candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, start_m, shadow0_db, sigma_db,
-            decorrelation_m, k_lo, k_hi, phase, g0, out[m],
+        field_pairs_row_into(
+            candidates_m[m, 0], candidates_m[m, 1], positions_m, mover, start_m, s0, sig, decorrelation_m, kl, kh,
+            ph, g, out[m],
         )  # fmt: skip
     return out
 
