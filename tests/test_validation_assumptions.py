@@ -21,6 +21,7 @@ import pytest
 from cv2x_marl.config import ConfigError, SpsConfig, apply_overrides, from_dict, preset
 from cv2x_marl.sim import Simulator, link
 from cv2x_marl.sim.chunk import independent_interference_success
+from cv2x_marl.sim.ground_truth import MoverLinks, SnapshotLinks
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.sps import model_alpha, model_step2_alone, select
 from cv2x_marl.validation.compare import MODEL_ASSUMPTION_SETS, assumption_sets, simulator_overrides
@@ -159,3 +160,15 @@ def test_model_route_switches_apply_to_validates_base_and_defaults_are_the_stand
 def test_independent_interference_refuses_what_it_cannot_model(sets: list[str]) -> None:
     with pytest.raises(ConfigError, match=r"link\.interference=independent"):
         apply_overrides(preset("highway-legacy"), ["link.inband_emission_model=flat", *sets])
+
+
+def test_snapshot_evaluators_refuse_independent_interference() -> None:
+    """The env's evaluators sum the interferers as the simulator's default does: they refuse the model route's
+    switch instead of evaluating links otherwise than the simulator ran them."""
+    sim = _tiny_scene([])
+    snap = sim.snapshot()
+    cfg = apply_overrides(sim.config, ["link.interference=independent"])
+    with pytest.raises(ValueError, match=r"link\.interference must be sum"):
+        SnapshotLinks(cfg, snap)
+    with pytest.raises(ValueError, match=r"link\.interference must be sum"):
+        MoverLinks.from_snapshots(cfg, [snap], [0])
