@@ -9,7 +9,8 @@
 # analytical model's stated assumptions (validate --assumptions model: uniform choice, Step 2 alone with
 # probability alpha(CBR), 0.1 dB threshold steps, each interferer alone; docs/validation.md), e.g.
 #   GRIDS=model OUT=/tmp/validation_all WORKERS=16 SEEDS="1 2 3 4 5 6 7 8" SUBFRAMES=4000 benchmarks/validate_all.sh
-# The model grid runs the numpy chunk (each interferer alone): measured here about 1.3x the simplified grid's CPU.
+# The model grid runs the numpy chunk (each interferer alone): 64 s against 37 s wall for the simplified grid here
+# (2 seeds x 1500 subframes, 2 workers on the 2-core machine), about 1.75x.
 #
 # Cost measured on the 2-core machine (2 workers, shared): 110 CPU-s (simplified) and 193 CPU-s (standard) for
 # 2 seeds x 1000 subframes of all 12 (configuration, density) pairs; a run's fixed part (warm-up) is about half of
