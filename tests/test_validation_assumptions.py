@@ -14,6 +14,7 @@ Each switch against an independent construction on a tiny scene:
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -172,3 +173,32 @@ def test_snapshot_evaluators_refuse_independent_interference() -> None:
         SnapshotLinks(cfg, snap)
     with pytest.raises(ValueError, match=r"link\.interference must be sum"):
         MoverLinks.from_snapshots(cfg, [snap], [0])
+
+
+def test_step3_in_tenth_of_a_db_steps_matches_the_literal_loop() -> None:
+    """The route's ``sps.threshold_step_db=0.1``: the closed form of the threshold equals raising it 0.1 dB at a
+    time until 20 % of the candidates remain (written out here), and that many survive."""
+    rng = np.random.default_rng(11)
+    cfg = SpsConfig(rsrp_threshold_dbm=-110.0, threshold_step_db=0.1, selection="uniform")
+    rsrp = rng.uniform(-125.0, -80.0, size=(200, 30))
+    rsrp[rng.random((200, 30)) < 0.1] = -np.inf
+    out = select(rsrp, np.ones_like(rsrp), cfg, rng)
+    for row in range(rsrp.shape[0]):
+        th = -110.0
+        while np.sum(rsrp[row] <= th) < 6:  # ceil(0.2 x 30)
+            th += 0.1
+        assert out.threshold_dbm[row] == pytest.approx(th, abs=1e-9)
+        assert out.n_kept[row] == np.sum(rsrp[row] <= th) >= 6
+        assert rsrp[row, out.choice[row]] <= out.threshold_dbm[row]
+
+
+def test_validate_command_takes_the_route(tmp_path: Path) -> None:
+    """``--assumptions`` parses to the two routes and refuses another before anything runs."""
+    from cv2x_marl.cli import build_parser
+
+    args = build_parser().parse_args(["validate", "--out", str(tmp_path / "v"), "--assumptions", "model"])
+    assert args.assumptions == "model"
+    assert build_parser().parse_args(["validate", "--out", str(tmp_path / "v")]).assumptions == "simulator"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["validate", "--out", str(tmp_path / "v"), "--assumptions", "paper"])
+    assert not (tmp_path / "v").exists()
