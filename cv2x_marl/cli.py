@@ -706,13 +706,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a simulator key (repeatable)")
     p.add_argument("--study", action="store_true", help="every configuration of the study (docs/validation.md)")
     p.add_argument("--workers", type=COUNT, default=1, help="simulator runs in this many processes")
-    p.add_argument(
-        "--assumptions",
-        choices=("simulator", "model"),
-        default="simulator",
-        help="simulator: the simulator's own procedures (validate's base and --set); model: the analytical model's "
-        "stated assumptions as simulator switches, before --set (MODEL_ASSUMPTION_SETS, docs/validation.md)",
-    )
+    assume = "model: the simulator under the analytical model's stated assumptions, before --set (docs/validation.md)"
+    p.add_argument("--assumptions", choices=("simulator", "model"), default="simulator", help=assume)
     p.set_defaults(func=_cmd_validate)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")
