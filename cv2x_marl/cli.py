@@ -385,10 +385,11 @@ def _cmd_baselines(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from cv2x_marl.validation.compare import run_grid, run_validation
+    from cv2x_marl.validation.compare import assumption_sets, run_grid, run_validation
 
     params = {k: v for k, v in vars(args).items() if k not in ("func", "out", "overwrite", "command")}
-    run = dict(n_subframes=args.subframes, seeds=args.seeds, sets=args.set or [], workers=args.workers)
+    sets = [*assumption_sets(args.assumptions), *(args.set or [])]  # --set last: it overrides
+    run = dict(n_subframes=args.subframes, seeds=args.seeds, sets=sets, workers=args.workers)
     with runs.run_folder(args.out, "validate", overwrite=args.overwrite, parameters=params):
         if args.study:
             run_grid(args.out, densities=args.densities, **run)
@@ -705,6 +706,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a simulator key (repeatable)")
     p.add_argument("--study", action="store_true", help="every configuration of the study (docs/validation.md)")
     p.add_argument("--workers", type=COUNT, default=1, help="simulator runs in this many processes")
+    assume = "model: the simulator under the analytical model's stated assumptions, before --set (docs/validation.md)"
+    p.add_argument("--assumptions", choices=("simulator", "model"), default="simulator", help=assume)
     p.set_defaults(func=_cmd_validate)
 
     p = sub.add_parser("config", help="print the resolved configuration, or the key reference")

@@ -275,8 +275,20 @@ class SpsConfig(Section):
     min_candidate_fraction: float = key_field(0.2, "Share of candidates that must survive exclusion", "", 0.01, 1.0)
     selection: str = key_field(
         "paper",
-        "paper: best 3 by RSSI, one at random; 3gpp: lowest-RSSI 20 %, one at random",
-        choices=("paper", "3gpp"),
+        "paper: best 3 by RSSI, one at random; 3gpp: lowest-RSSI 20 %, one at random; uniform: one at random "
+        "among every candidate that survives the exclusion, no S-RSSI ranking (the analytical model's assumption, "
+        "Gonzalez-Martin et al. 2019 eq. 26: uniform among its N_c candidates; not the standard's step 8)",
+        choices=("paper", "3gpp", "uniform"),
+    )
+    threshold_increase: str = key_field(
+        "3gpp",
+        "3gpp: while fewer than min_candidate_fraction of the candidates survive, the RSRP threshold rises by "
+        "threshold_step_db (TS 36.213 14.1.1.6 step 7; the default, the standard's); model_cbr: the analytical "
+        "model's assumption (Gonzalez-Martin et al. 2019 eqs. 21-23, 34): with probability alpha(CBR) (eq. 22: 0 "
+        "below 0.2, 2 CBR - 0.4 up to 0.7, 1 above), CBR the share of the UE's candidates excluded at the initial "
+        "threshold, the UE keeps the initial threshold and chooses among the candidates left (Step 2 alone, however "
+        "few; raised as 3gpp only where none is left), otherwise as 3gpp (Step 3); one extra draw per selection",
+        choices=("3gpp", "model_cbr"),
     )
     paper_best_k: int = key_field(3, "Number of best candidates in the paper's rule", "", 1, 100)
     keep_probability: float = key_field(
@@ -402,6 +414,14 @@ class LinkConfig(Section):
         "the default); linear: PER linear in SINR (dB) (the paper presets'). Same at the table points",
         choices=PER_INTERPOLATIONS,
     )
+    interference: str = key_field(
+        "sum",
+        "How co-channel transmitters interfere: sum: their powers add in the SINR (eq. 8; the default); "
+        "independent: the analytical model's assumption (Gonzalez-Martin et al. 2019 eq. 14): each interferer "
+        "alone, P = P0 prod_i (P_i / P0) with P_i the success at the SINR of interferer i alone and P0 without "
+        "interference (needs link.model=per_table, channel.fading=none, no in-band emission; runs the numpy chunk)",
+        choices=("sum", "independent"),
+    )
     max_range_m: float | None = key_field(
         None,
         "Interference and link cut-off: pairs farther apart are not computed; null: all pairs",
@@ -418,6 +438,12 @@ class LinkConfig(Section):
     )
 
     def _check(self) -> None:
+        if self.interference == "independent" and (self.model != "per_table" or self.has_inband_emission):
+            raise ConfigError(
+                "link.interference=independent (the analytical model's interferers one at a time) needs "
+                f"link.model=per_table (got {self.model}) and no in-band emission (link.inband_emission_model=flat "
+                "with link.inband_emission_db null)"
+            )
         if self.inband_emission_model == "3gpp" and self.inband_emission_db is not None:
             raise ConfigError(
                 f"link.inband_emission_db ({self.inband_emission_db:g}) is the flat model's leakage: with "
@@ -511,6 +537,11 @@ class ScenarioConfig:
             raise ConfigError(
                 "link.model=rayleigh integrates over Rayleigh fading: it needs channel.fading=rayleigh "
                 f"(got channel.fading={self.channel.fading!r})"
+            )
+        if self.link.interference == "independent" and self.channel.fading != "none":
+            raise ConfigError(
+                "link.interference=independent (the analytical model's interferers one at a time) needs "
+                f"channel.fading=none (got channel.fading={self.channel.fading!r})"
             )
         if self.sps.selection_window_subframes + self.sps.t1_subframes - 1 > self.traffic.rri_ms:
             raise ConfigError(

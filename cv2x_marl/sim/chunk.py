@@ -56,6 +56,39 @@ def joined(parts: list[ChunkLinksOut]) -> ChunkLinksOut:
     return tx, rx, p, cause
 
 
+def independent_interference_success(
+    p0: FloatArray,
+    success: Any,
+    s_mw: FloatArray,
+    i_each_mw: FloatArray,
+    rep: IntArray,
+    noise_mw: float,
+) -> FloatArray:
+    """``link.interference=independent``: the success probability of each link with its co-channel
+    interferers taken one at a time, as the analytical model's eq. 14 (Gonzalez-Martin et al. 2019):
+    ``P = P0 prod_i (P_i / P0)``, ``P_i = success(S / (I_i + N))`` the success with interferer ``i`` alone
+    and ``P0 = success(S / N)`` without interference (so ``1 - P/P0 = 1 - prod_i (1 - p_INT,i)``, with
+    ``p_INT,i = 1 - P_i / P0`` eq. 18's probability that ``i`` alone makes the packet fail).
+
+    Args:
+        p0: [L] success without interference.
+        success: the link curve, SINR (dB) -> success probability (:meth:`cv2x_marl.sim.link.PerCurve.success`).
+        s_mw: [L] received power of each link, mW.
+        i_each_mw: [K] power of one interferer at the link's receiver, mW, one row per (link, interferer).
+        rep: [K] the link of each row.
+        noise_mw: noise power, mW.
+
+    Returns:
+        [L] ``P``.
+    """
+    p_each = success(10.0 * np.log10(s_mw[rep] / (i_each_mw + noise_mw)))
+    p0_rep = p0[rep]
+    ratio = np.where(p0_rep > 0.0, p_each / np.where(p0_rep > 0.0, p0_rep, 1.0), 1.0)
+    out = p0.copy()
+    np.multiply.at(out, rep, ratio)
+    return np.asarray(out)
+
+
 class ChunkRunner:
     """Runs the chunks of a period for a :class:`~cv2x_marl.sim.simulator.Simulator`.
 
@@ -149,7 +182,7 @@ class ChunkRunner:
         active = (slot >= lo) & (slot < hi)
         if not np.any(active):
             return None
-        if compiled and cols is None and cfg.link.model != "rayleigh":
+        if compiled and cols is None and cfg.link.model != "rayleigh" and cfg.link.interference == "sum":
             return self._run_compiled(geo, sched, active, acc)
         sel = active[geo.tx]
         rx, tx = geo.rx[sel], geo.tx[sel]
@@ -176,7 +209,12 @@ class ChunkRunner:
         if need_triples:
             rep, partner = self.group_terms(tx, rx, active, sched.resource)  # co-channel
         model = cfg.link.model
-        if model == "per_table":
+        if cfg.link.interference == "independent":  # the analytical model's eq. 14 (config: per_table, no fading)
+            p0 = self.curve.success(snr_db)
+            rep_i, partner_i = self.group_terms(tx, rx, active, sched.resource)
+            i_each_mw = self._mean_power_lookup(geo, rx[rep_i], partner_i)
+            p = independent_interference_success(p0, self.curve.success, s_mw, i_each_mw, rep_i, self.noise_mw)
+        elif model == "per_table":
             p = self.curve.success(sinr_db)
             p0 = self.curve.success(snr_db)
         elif model == "threshold":

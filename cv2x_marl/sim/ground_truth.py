@@ -33,6 +33,16 @@ from cv2x_marl.units import db_to_linear, noise_power_dbm
 FloatArray = NDArray[np.float64]
 
 
+def _refuse_independent_interference(config: ScenarioConfig) -> None:
+    """The evaluators sum the interferers (eq. 8): refuse ``link.interference=independent`` (``validate
+    --assumptions model`` only) rather than evaluate links another way than the simulator does."""
+    if config.link.interference != "sum":
+        raise ValueError(
+            "link.interference must be sum for the snapshot evaluators (they sum the interferers, eq. 8); "
+            f"got {config.link.interference!r}, the analytical model's assumption of validate --assumptions model"
+        )
+
+
 def mean_rx_dbm(
     config: ScenarioConfig,
     road: Road,
@@ -112,6 +122,7 @@ class MoverLinks:
         shadowing field (or None) per snapshot, drawn at the snapshot's positions."""
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
+        _refuse_independent_interference(config)
         road = Road.from_config(config.road)
         n = snapshots[0].positions_m.shape[0]
         b = len(snapshots)
@@ -297,6 +308,7 @@ class SnapshotLinks:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
         if config.link.model == "rayleigh":
             raise ValueError("SnapshotLinks supports link.model per_table and threshold")
+        _refuse_independent_interference(config)
         self.config = config
         self.road = Road.from_config(config.road)
         self.snapshot = snapshot

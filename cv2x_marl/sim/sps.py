@@ -9,7 +9,12 @@ the window ``[g + T1, g + T2]`` (mod RRI), ``M = (T2 - T1 + 1) * n_subchannels``
 2. exclude a candidate reserved by a received SCI whose PSSCH-RSRP exceeds the threshold
    (step 6); while fewer than ``ceil(0.2 M)`` remain, raise the threshold by 3 dB (step 7);
 3. paper rule: the ``k = 3`` lowest-RSSI survivors, one of them uniformly (Sec. 3);
-   3GPP rule: the lowest-RSSI survivors making ``ceil(0.2 M)``, one uniformly (step 8).
+   3GPP rule: the lowest-RSSI survivors making ``ceil(0.2 M)``, one uniformly (step 8);
+   uniform (the analytical model's assumption, ``validate --assumptions model``): any survivor, uniformly.
+
+``sps.threshold_increase=model_cbr`` replaces step 7 by the analytical model's weighting of its Step 2
+and Step 3 (Gonzalez-Martin et al. 2019 eqs. 21-23): with probability ``alpha(CBR)`` the UE keeps the
+initial threshold however few candidates survive (:func:`model_step2_alone`).
 
 The 3 dB loop has a closed form: with ``v_q`` the q-th smallest RSRP of the candidates
 (``q = ceil(0.2 M)``), the final threshold is ``Th + 3 max(0, ceil((v_q - Th) / 3))``.
@@ -94,15 +99,48 @@ def select(
     with np.errstate(invalid="ignore"):
         steps = np.where(vq > th0, np.ceil((vq - th0) / cfg.threshold_step_db - 1e-12), 0.0)
     threshold = th0 + cfg.threshold_step_db * steps
+    if cfg.threshold_increase == "model_cbr":  # Gonzalez-Martin et al. eqs. 21-23: Step 2 alone w.p. alpha
+        step2 = model_step2_alone(rsrp_dbm, th0, np.asarray(rng.random(v), dtype=np.float64))
+        threshold = np.where(step2, th0, threshold)
     kept = rsrp_dbm <= threshold[:, None]
     n_kept = kept.sum(axis=1)
-    k = cfg.paper_best_k if cfg.selection == "paper" else q
-    score = np.where(kept, rssi_mw, np.inf)
+    if cfg.selection == "uniform":  # the analytical model: uniform among every survivor, no S-RSSI ranking
+        k = m
+        score = np.where(kept, 0.0, np.inf)
+    else:
+        k = cfg.paper_best_k if cfg.selection == "paper" else q
+        score = np.where(kept, rssi_mw, np.inf)
     order = np.argsort(score, axis=1, kind="stable")
     n_pick = np.minimum(k, n_kept)
     pick = np.floor(rng.random(v) * n_pick).astype(np.int64)
     choice = order[np.arange(v), pick]
     return Selection(choice, threshold, n_kept)
+
+
+def model_alpha(cbr: NDArray[np.floating]) -> FloatArray:
+    """The analytical model's weight of Step 2 (Gonzalez-Martin et al. 2019 eq. 22), elementwise: 0 below a
+    CBR of 0.2, ``2 CBR - 0.4`` up to 0.7, then 1."""
+    c = np.asarray(cbr, dtype=np.float64)
+    return np.asarray(np.where(c < 0.2, 0.0, np.where(c <= 0.7, 2.0 * c - 0.4, 1.0)))
+
+
+def model_step2_alone(rsrp_dbm: FloatArray, threshold_dbm: float, u: FloatArray) -> NDArray[np.bool_]:
+    """``sps.threshold_increase=model_cbr``: which of V selecting UEs use the analytical model's Step 2 alone
+    (Gonzalez-Martin et al. 2019 eqs. 21-23): those with ``u < alpha(CBR)`` (eq. 22) that have a candidate
+    left at the initial threshold, CBR being the UE's share of excluded candidates there (``N_e / N``,
+    eq. 34; unmonitored ones count as excluded).
+
+    Args:
+        rsrp_dbm: [V, M] RSRP of the SCI reserving each candidate (``-inf``: none, ``+inf``: unmonitored).
+        threshold_dbm: the initial RSRP threshold (per resource element).
+        u: [V] uniforms on [0, 1).
+
+    Returns:
+        [V] True where the UE keeps the initial threshold.
+    """
+    n_free = np.sum(rsrp_dbm <= threshold_dbm, axis=1)
+    cbr = 1.0 - n_free / rsrp_dbm.shape[1]
+    return np.asarray((u < model_alpha(cbr)) & (n_free > 0))
 
 
 def nan_mean_first_axis(x: NDArray[np.float32]) -> NDArray[np.float32]:

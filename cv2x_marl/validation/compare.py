@@ -73,6 +73,28 @@ STUDY_CONFIGURATIONS: tuple[tuple[int, float, float], ...] = (
 #: ... each at these densities, veh/m
 STUDY_DENSITIES: tuple[float, ...] = (0.1, 0.2, 0.3)
 _FIGURES_CSV = "gonzalez_martin_2019_figures.csv"
+#: ``validate --assumptions model``: the analytical model's stated assumptions as simulator switches (over
+#: validate's base, which already has the model's propagation, BLER, sensing threshold, keep probability 0,
+#: sensing by every SCI above P_SEN and reselection on one sensing map per period, the model's ``1 / tau``
+#: chance of selecting at the same time): uniform choice among the candidates (eq. 26), Step 3's threshold
+#: raised in 0.1 dB steps as the authors' code does, Step 2 alone with probability alpha(CBR) (eqs. 21-23), each
+#: interferer alone (eq. 14). Not switchable: the independent half duplex of eq. 7 and the overlap of two
+#: vehicles' candidate sets of eq. 30 (docs/validation.md, "The model's assumptions")
+MODEL_ASSUMPTION_SETS: tuple[str, ...] = (
+    "sps.selection=uniform",
+    "sps.threshold_step_db=0.1",
+    "sps.threshold_increase=model_cbr",
+    "link.interference=independent",
+)
+ASSUMPTIONS: tuple[str, ...] = ("simulator", "model")
+
+
+def assumption_sets(assumptions: str) -> tuple[str, ...]:
+    """The ``--set`` strings of ``validate --assumptions``: none for ``simulator``, :data:`MODEL_ASSUMPTION_SETS`
+    for ``model``."""
+    if assumptions not in ASSUMPTIONS:
+        raise ValueError(f"assumptions must be one of {ASSUMPTIONS}, got {assumptions!r}")
+    return MODEL_ASSUMPTION_SETS if assumptions == "model" else ()
 
 
 @functools.cache
