@@ -230,24 +230,14 @@ def simulate_many(
     tasks: Sequence[tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]], workers: int = 1
 ) -> list[dict[str, np.ndarray]]:
     """:func:`simulate_seed` of every ``(overrides, seed, extra_sets)`` task, in task order; with
-    ``workers > 1`` in that many processes (each run is independent and seeded, so the results are
-    the same as in one process)."""
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    if workers == 1 or len(tasks) <= 1:
-        return [_simulate_seed_task(t) for t in tasks]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    ``workers > 1`` in that many spawned processes (:func:`cv2x_marl.parallel.map_in_processes`, the
+    largest scenes first; each run is independent and seeded, so the results are the same as in one
+    process)."""
+    from cv2x_marl.parallel import map_in_processes
 
-    # the largest scenes first, so that the pool is not left waiting on one of them at the end
-    order = sorted(range(len(tasks)), key=lambda i: -_task_cost(tasks[i]))
-    ctx = multiprocessing.get_context("spawn")  # no fork of a process holding numba/BLAS threads
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
-        done = list(pool.map(_simulate_seed_task, [tasks[i] for i in order]))
-    out: list[dict[str, np.ndarray]] = [{}] * len(tasks)
-    for i, r in zip(order, done, strict=True):
-        out[i] = r
-    return out
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    return list(map_in_processes(_simulate_seed_task, list(tasks), workers, cost=_task_cost))
 
 
 def _task_cost(task: tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]) -> float:
