@@ -245,6 +245,8 @@ def test_benchmark_table_equals_a_recomputation_and_evaluate(tmp_path: Path, mon
             lo, hi = got["ci95_utility_gain"]
             assert cells[2:4] == [f"{100 * got['iqm_utility_gain']:+.1f}", f"[{100 * lo:+.1f}, {100 * hi:+.1f}]"]
             assert cells[4] == f"{100 * got['iqm_share_of_ceiling']:.1f}" and cells[6] == f"{got['mean_prr']:.4f}"
+            if method != "gbmu":  # `evaluate` runs the same loop for every method: one cross-check per task
+                continue
             # the same method through `evaluate` on the same seeds: the same episodes and statistics
             e = ev.evaluate(
                 task.env_id, method, 0, 0, None, dict(task.options), progress=False, seeds=list(task.heldout_seeds[:2])
