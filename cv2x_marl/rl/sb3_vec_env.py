@@ -45,7 +45,10 @@ class AgentsVecEnv(VecEnv):
         start_pool: when set, every episode of every copy starts from one of ``start_pool`` episode
             seeds (derived from the seed of copy 0, so from PPO's seed) instead of a fresh seed: with
             the envs' ``reset_cache`` their starts are computed once and reused (a training speed-up
-            that trades the variety of starts; held-out evaluation is unaffected).
+            that trades the variety of starts; held-out evaluation is unaffected). With the env option
+            ``start_pool=P`` instead (the envs built with it), the episodes start from the protocol's first
+            P training seeds (:func:`cv2x_marl.env.seeds.training_pool`, disjoint from every held-out list),
+            drawn per copy from the copy's generator (seeded from PPO's seed); the two exclude each other.
         batched: step one-mover copies in one compiled call when the env allows it (False: one
             ``step_mover`` call per copy; the same results, for checks).
     """
@@ -67,6 +70,11 @@ class AgentsVecEnv(VecEnv):
         self._pool: list[int] | None = None
         first = env_fn()
         check_copies(first, n_copies)
+        if start_pool is not None and first.start_pool:
+            raise ValueError(
+                f"start_pool={start_pool} (seeds derived from PPO's seed) and the env option "
+                f"start_pool={first.start_pool} (the protocol's training seeds) exclude each other: set one"
+            )
         self.envs = [first, *(env_fn() for _ in range(n_copies - 1))]
         self.movers = [a for a in first.possible_agents if first.mover_mask[first.agent_index[a]]]
         self.m = len(self.movers)
@@ -102,7 +110,11 @@ class AgentsVecEnv(VecEnv):
         return obs
 
     def reset(self) -> VecEnvObs:
-        if self.start_pool is not None and (self._pool is None or self._seeds[0] is not None):
+        if self.envs[0].start_pool and self._pool is None:  # the env option: the protocol's training seeds
+            from cv2x_marl.env.seeds import training_pool
+
+            self._pool = [int(s) for s in training_pool(self.envs[0].start_pool)]
+        elif self.start_pool is not None and (self._pool is None or self._seeds[0] is not None):
             from cv2x_marl.rng import derive_seeds
 
             base = self._seeds[0]

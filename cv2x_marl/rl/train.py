@@ -36,6 +36,8 @@ MAX_LAYER_UNITS = 65_536
 #: Python objects of one env copy besides its simulator arrays (measured: paper 0.33 MB per copy,
 #: of which 0.32 MB are the arrays :func:`estimate_training_memory` counts)
 _COPY_OVERHEAD_BYTES = 100_000
+#: ``ppo.encoder``: ``mlp`` (SB3's flat MLP) or a neighbour encoder (:mod:`cv2x_marl.rl.encoders`)
+ENCODERS = ("mlp", "deepsets", "attention")
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,10 @@ class PpoConfig:
     net_arch: tuple[int, ...] = (128, 128)
     #: initial log standard deviation of the Gaussian actions (SB3's default 0: std 1)
     log_std_init: float = 0.0
+    #: what the MLPs read: ``mlp`` the flat observation, ``deepsets`` / ``attention`` a NeighbourEncoder's 3 d
+    encoder: str = "mlp"
+    #: features (:class:`cv2x_marl.rl.encoders.NeighbourEncoder`), d = ``encoder_units``
+    encoder_units: int = 64
 
     def __post_init__(self) -> None:
         """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
@@ -91,6 +97,13 @@ class PpoConfig:
         if max(units) > MAX_LAYER_UNITS:
             raise TrainError(f"ppo.net_arch must be {rule}, got {list(arch)!r}")
         object.__setattr__(self, "net_arch", units)
+        if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
+            raise TrainError(f"ppo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
+        object.__setattr__(self, "encoder_units", _check_count("ppo.encoder_units", self.encoder_units))
+        if self.encoder_units > MAX_LAYER_UNITS:
+            raise TrainError(
+                f"ppo.encoder_units must be an integer in [1, {MAX_LAYER_UNITS:,}], got {self.encoder_units}"
+            )
 
 
 def _check_count(name: str, value: Any) -> int:
@@ -152,6 +165,9 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["ppo"]["net_arch"] = list(self.ppo.net_arch)
+        for key in ("encoder", "encoder_units"):  # added later: left out at their defaults (old runs resume)
+            if d["ppo"][key] == getattr(PpoConfig, key):
+                del d["ppo"][key]
         return d
 
 
@@ -229,10 +245,16 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
     return cfg
 
 
-def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = None) -> Any:
-    """A fresh SB3 PPO (MLP policy, CPU) with the hyperparameters of ``p`` on the VecEnv ``vec``."""
+def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = None, layout: Any = None) -> Any:
+    """A fresh SB3 PPO (MLP policy, CPU) with the hyperparameters of ``p`` on the VecEnv ``vec``; ``layout``:
+    the env's :class:`~cv2x_marl.env.observation.ObservationLayout`, needed by ``p.encoder`` other than ``mlp``."""
     from stable_baselines3 import PPO
 
+    policy_kwargs: dict[str, Any] = {"net_arch": list(p.net_arch), "log_std_init": p.log_std_init}
+    if p.encoder != "mlp":
+        from cv2x_marl.rl.encoders import encoder_policy_kwargs
+
+        policy_kwargs.update(encoder_policy_kwargs(p.encoder, p.encoder_units, layout))
     return PPO(
         "MlpPolicy",
         vec,
@@ -246,7 +268,7 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
         ent_coef=p.ent_coef,
         vf_coef=p.vf_coef,
         max_grad_norm=p.max_grad_norm,
-        policy_kwargs={"net_arch": list(p.net_arch), "log_std_init": p.log_std_init},
+        policy_kwargs=policy_kwargs,
         tensorboard_log=tensorboard_log,
         seed=seed,
         device="cpu",
@@ -416,7 +438,7 @@ def build_training(cfg: TrainConfig, seed: int, tensorboard_log: str | None = No
     except (ValueError, TypeError) as exc:
         raise TrainError(f"train.env of {cfg.env_id}: {exc}") from exc
     try:
-        model = make_ppo(vec, cfg.ppo, seed, tensorboard_log)
+        model = make_ppo(vec, cfg.ppo, seed, tensorboard_log, layout=vec.envs[0].layout)
     except (AssertionError, ValueError, TypeError) as exc:
         vec.close()
         raise TrainError(f"train.ppo: stable-baselines3 refuses the PPO settings: {exc}") from exc

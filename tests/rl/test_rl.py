@@ -238,3 +238,27 @@ def test_scientific_notation_is_a_number_in_training_configs(tmp_path: Path) -> 
     cfg = load_train_config(f)
     assert cfg.ppo.learning_rate == 3e-4 and cfg.ppo.ent_coef == 1e-3
     assert isinstance(cfg.ppo.learning_rate, float)
+
+
+def test_adapter_draws_from_the_protocol_training_seeds_with_the_env_option_start_pool() -> None:
+    """With the env option ``start_pool=P`` every episode of every copy starts from one of the first P training
+    seeds of the protocol (``seeds.training_pool``), drawn reproducibly from PPO's seed; the adapter's own pool
+    (seeds derived from PPO's seed) is refused beside it."""
+    from cv2x_marl.env.seeds import HELDOUT_SEEDS, training_pool
+
+    def episode_seeds(seed: int) -> list[int]:
+        v = AgentsVecEnv(lambda: parallel_env(movers=[0], **{**FAST_ENV, "start_pool": 3}), 2)
+        v.seed(seed)
+        v.reset()
+        used = [e.seed_used for e in v.envs]
+        for _ in range(3):  # max_cycles = 5: three auto-resets of each copy
+            for _ in range(5):
+                v.step(np.zeros((v.num_envs, 2), dtype=np.float32))
+            used += [e.seed_used for e in v.envs]
+        return used
+
+    a, b = episode_seeds(4), episode_seeds(4)
+    assert a == b and set(a) <= set(training_pool(3)) and len(set(a)) > 1
+    assert not set(a) & {s for seeds in HELDOUT_SEEDS.values() for s in seeds}
+    with pytest.raises(ValueError, match="exclude each other"):
+        AgentsVecEnv(lambda: parallel_env(**{**FAST_ENV, "start_pool": 3}), 2, start_pool=4)
