@@ -513,38 +513,8 @@ class MobilityEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
-        """[N, 2] actions by vehicle index (0 for vehicles without an action); raises on bad input."""
-        if not isinstance(actions, dict):
-            raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
-        if actions.keys() != self._live:
-            unknown = [a for a in actions if a not in self._live]
-            if unknown:
-                live = f"{self.agents[0]} .. {self.agents[-1]}" if self.agents else "none"
-                raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {live}")
-            missing = [a for a in self.agents if a not in actions]
-            raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
-        try:
-            arr = np.array(list(actions.values()), dtype=np.float64).reshape(len(actions), 2)
-        except (ValueError, TypeError):  # ragged, wrong size or not numeric: find the culprit
-            rows = []
-            for a, v in actions.items():
-                try:
-                    row = np.asarray(v, dtype=np.float64)
-                except (ValueError, TypeError):
-                    raise ValueError(f"action of {a} must be numeric with shape (2,), got {v!r}") from None
-                if row.size != 2:
-                    raise ValueError(f"action of {a} must have shape (2,), got shape {row.shape}") from None
-                rows.append(row.reshape(2))
-            arr = np.array(rows)
-        if not np.isfinite(arr).all():
-            k = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
-            name = list(actions)[k]
-            raise ValueError(f"action of {name} is not finite: {arr[k].tolist()}")
-        if len(actions) == self.n and list(actions) == self.possible_agents:
-            return arr  # the usual case: every agent, in order
-        act = np.zeros((self.n, 2))
-        act[[self.agent_index[a] for a in actions]] = arr
-        return act
+        """[N, 2] actions by vehicle index (:func:`~cv2x_marl.env.step.decode_actions`); raises on bad input."""
+        return step_core.decode_actions(actions, self._live, self.agents, self.possible_agents, self.agent_index)
 
     def _traffic_positions(self) -> NDArray[np.float64]:
         from cv2x_marl.sim import mobility

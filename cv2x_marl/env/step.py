@@ -16,12 +16,16 @@ operations), not by keeping three copies in step:
 - :func:`move_geometry`: row and column of the pair geometry after one vehicle moved;
 - :func:`step_reward` / :func:`step_rewards`: the ``utility`` or ``improvement`` reward form;
 - :func:`own_state_update` / :func:`own_v1_entries`: observation version 1's own state of an agent
-  and its nine own entries (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`).
+  and its nine own entries (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`);
+- :func:`decode_actions`: the actions a step received, checked and laid out by vehicle index;
+  :func:`speed_commands`: speed and lane actions as target speeds and lane commands.
 
 Lengths in m, utilities in nats (eq. 12's natural log).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -453,3 +457,59 @@ def speed_commands(
         target[mover_mask] = 0.5 * (a[mover_mask, 0] + 1.0) * limit_mps
         lanes[mover_mask] = np.where(a[mover_mask, 1] > 0.5, 1, np.where(a[mover_mask, 1] < -0.5, -1, 0))
     return target, lanes
+
+
+def decode_actions(
+    actions: Any,
+    live: set[str],
+    agents: list[str],
+    possible_agents: list[str],
+    agent_index: dict[str, int],
+) -> FloatArray:
+    """The actions a ``step`` received, checked, as [N, 2] by vehicle index (0 for vehicles without an
+    action: the finished ones).
+
+    Args:
+        actions: agent name -> action (shape (2,), finite numbers).
+        live: the names that must act now (every live agent, no other).
+        agents: the live agents in order (for the messages).
+        possible_agents: every agent in vehicle order (N).
+        agent_index: agent name -> vehicle index.
+
+    Raises:
+        TypeError: ``actions`` is not a dict.
+        KeyError: an unknown or finished agent, or a live agent without an action (named).
+        ValueError: an action that is not numeric, not of shape (2,) or not finite (named with its agent).
+    """
+    if not isinstance(actions, dict):
+        raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
+    if actions.keys() != live:
+        unknown = [a for a in actions if a not in live]
+        if unknown:
+            shown = f"{agents[0]} .. {agents[-1]}" if agents else "none"
+            raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {shown}")
+        missing = [a for a in agents if a not in actions]
+        raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+    try:
+        arr = np.array(list(actions.values()), dtype=np.float64).reshape(len(actions), 2)
+    except (ValueError, TypeError):  # ragged, wrong size or not numeric: find the culprit
+        rows = []
+        for a, v in actions.items():
+            try:
+                row = np.asarray(v, dtype=np.float64)
+            except (ValueError, TypeError):
+                raise ValueError(f"action of {a} must be numeric with shape (2,), got {v!r}") from None
+            if row.size != 2:
+                raise ValueError(f"action of {a} must have shape (2,), got shape {row.shape}") from None
+            rows.append(row.reshape(2))
+        arr = np.array(rows)
+    if not np.isfinite(arr).all():
+        k = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
+        name = list(actions)[k]
+        raise ValueError(f"action of {name} is not finite: {arr[k].tolist()}")
+    n = len(possible_agents)
+    if len(actions) == n and list(actions) == possible_agents:
+        return arr  # the usual case: every agent, in order
+    act = np.zeros((n, 2))
+    act[[agent_index[a] for a in actions]] = arr
+    return act
