@@ -226,6 +226,14 @@ def _simulate_seed_task(task: tuple[dict[str, dict[str, Any]], int, tuple[str, .
     return simulate_seed(*task)
 
 
+def _check_run_size(n_subframes: int, workers: int) -> None:
+    """Refuse a run of fewer than one subframe or one worker, before anything runs or is written."""
+    if n_subframes < 1:
+        raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+
+
 def simulate_many(
     tasks: Sequence[tuple[dict[str, dict[str, Any]], int, tuple[str, ...]]], workers: int = 1
 ) -> list[dict[str, np.ndarray]]:
@@ -527,10 +535,7 @@ def run_validation(
     Raises:
         ValueError: a setting the matched configuration cannot take (named in the message).
     """
-    if n_subframes < 1:
-        raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    _check_run_size(n_subframes, workers)
     settings = {
         "packets_per_s": packets_per_s,
         "tx_power_dbm": tx_power_dbm,
@@ -630,10 +635,7 @@ def run_grid(
     Raises:
         ValueError: a setting the matched configuration cannot take (named in the message).
     """
-    if n_subframes < 1:
-        raise ValueError(f"n_subframes must be >= 1, got {n_subframes}")
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    _check_run_size(n_subframes, workers)
     for n_sub, lam, pt in configurations:  # refuse before anything runs or is written
         for rho in densities:
             simulator_overrides(rho, lam, pt, n_sub, packet_bytes, n_subframes)
