@@ -16,10 +16,57 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from cv2x_marl.sim.kernels.trig import cos_into
+
 FloatArray = NDArray[np.float64]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
+def wave_args_into(
+    lo_dx: float,
+    lo_dy: float,
+    hi_dx: float,
+    hi_dy: float,
+    k_lo: FloatArray,
+    k_hi: FloatArray,
+    phase: FloatArray,
+    out: FloatArray,
+) -> None:
+    """Into ``out`` [W]: the arguments ``k_lo_w . dx_lo + k_hi_w . dx_hi + phi_w`` (rad) of one pair's
+    cosines, its ends moved by ``(lo_dx, lo_dy)`` and ``(hi_dx, hi_dy)`` (m); ``k_lo``, ``k_hi`` [W, 2]
+    (rad/m), ``phase`` [W] (rad)."""
+    for w in range(phase.shape[0]):
+        out[w] = k_lo[w, 0] * lo_dx + k_lo[w, 1] * lo_dy + k_hi[w, 0] * hi_dx + k_hi[w, 1] * hi_dy + phase[w]
+
+
+@njit(cache=True)
+def pair_value_db(
+    lo_dx: float,
+    lo_dy: float,
+    hi_dx: float,
+    hi_dy: float,
+    s0_db: float,
+    sigma_db: float,
+    decorrelation_m: float,
+    cosines: FloatArray,
+    g0: float,
+) -> float:
+    """Shadowing (dB) of one pair from its ``W`` cosines ``cosines`` [W] (:func:`wave_args_into` through
+    :func:`~cv2x_marl.sim.kernels.trig.cos_into`): ``rho s0 + sigma (G - rho G0)`` with
+    ``G = sqrt(2 / W) sum_w cos_w`` (summed in wave order) and
+    ``rho = exp(-(|dx_lo| + |dx_hi|) / d)``. Neither end moved: exactly ``s0``."""
+    if lo_dx == 0.0 and lo_dy == 0.0 and hi_dx == 0.0 and hi_dy == 0.0:
+        return s0_db
+    w_count = cosines.shape[0]
+    g = 0.0
+    for w in range(w_count):
+        g += cosines[w]
+    g *= math.sqrt(2.0 / w_count)
+    rho = math.exp(-(math.hypot(lo_dx, lo_dy) + math.hypot(hi_dx, hi_dy)) / decorrelation_m)
+    return rho * s0_db + sigma_db * (g - rho * g0)
+
+
+@njit(cache=True)
 def pair_field_db(
     lo_dx: float,
     lo_dy: float,
@@ -38,7 +85,9 @@ def pair_field_db(
 
     ``s = rho s0 + sigma (G - rho G0)`` with ``rho = exp(-(|dx_lo| + |dx_hi|) / d)`` and
     ``G = sqrt(2 / W) sum_w cos(k_lo_w . dx_lo + k_hi_w . dx_hi + phi_w)`` (module docstring of
-    :mod:`cv2x_marl.sim.shadow_field`). Neither end moved: exactly ``s0``.
+    :mod:`cv2x_marl.sim.shadow_field`): :func:`wave_args_into`, the cosines by
+    :func:`~cv2x_marl.sim.kernels.trig.cos_into`, then :func:`pair_value_db`. Neither end moved:
+    exactly ``s0``.
 
     Args:
         lo_dx, lo_dy, hi_dx, hi_dy: displacements of the two ends (m).
@@ -51,13 +100,11 @@ def pair_field_db(
     """
     if lo_dx == 0.0 and lo_dy == 0.0 and hi_dx == 0.0 and hi_dy == 0.0:
         return s0_db
-    w_count = phase.shape[0]
-    g = 0.0
-    for w in range(w_count):
-        g += math.cos(k_lo[w, 0] * lo_dx + k_lo[w, 1] * lo_dy + k_hi[w, 0] * hi_dx + k_hi[w, 1] * hi_dy + phase[w])
-    g *= math.sqrt(2.0 / w_count)
-    rho = math.exp(-(math.hypot(lo_dx, lo_dy) + math.hypot(hi_dx, hi_dy)) / decorrelation_m)
-    return rho * s0_db + sigma_db * (g - rho * g0)
+    args = np.empty(phase.shape[0])
+    cosines = np.empty(phase.shape[0])  # not in place: an aliased output keeps the pass from vectorising
+    wave_args_into(lo_dx, lo_dy, hi_dx, hi_dy, k_lo, k_hi, phase, args)
+    cos_into(args, cosines)
+    return pair_value_db(lo_dx, lo_dy, hi_dx, hi_dy, s0_db, sigma_db, decorrelation_m, cosines, g0)
 
 
 @njit(cache=True)
@@ -148,10 +195,22 @@ def field_pairs_row_into(
     """Into ``out`` [N]: the shadowing of ``mover``'s links with it at ``(cx, cy)`` (m), every other vehicle
     at ``positions_m`` [N, 2] (its own row there is ignored); 0 at ``mover``. The pair arrays are
     :func:`gather_mover_pairs`' (indexed by the other end). Equal to row ``mover`` of :func:`field_shadow_db`
-    with the mover there (the same :func:`pair_field_db` calls, the lower index's displacement first)."""
+    with the mover there (the same arithmetic as :func:`pair_field_db`, the lower index's displacement first,
+    with the cosines of all pairs in one :func:`~cv2x_marl.sim.kernels.trig.cos_into` pass)."""
     n = positions_m.shape[0]
+    w_count = phase.shape[1]
     mx = cx - start_m[mover, 0]
     my = cy - start_m[mover, 1]
+    args = np.empty((n, w_count))  # every pair's wave arguments, then their cosines in one pass
+    cosines = np.empty((n, w_count))  # not in place: an aliased output keeps the pass from vectorising
+    for j in range(n):
+        jx = positions_m[j, 0] - start_m[j, 0]
+        jy = positions_m[j, 1] - start_m[j, 1]
+        if mover < j:
+            wave_args_into(mx, my, jx, jy, k_lo[j], k_hi[j], phase[j], args[j])
+        else:
+            wave_args_into(jx, jy, mx, my, k_lo[j], k_hi[j], phase[j], args[j])
+    cos_into(args.reshape(n * w_count), cosines.reshape(n * w_count))
     for j in range(n):
         if j == mover:
             out[j] = 0.0
@@ -159,13 +218,9 @@ def field_pairs_row_into(
         jx = positions_m[j, 0] - start_m[j, 0]
         jy = positions_m[j, 1] - start_m[j, 1]
         if mover < j:
-            out[j] = pair_field_db(
-                mx, my, jx, jy, s0_db[j], sigma_db[j], decorrelation_m, k_lo[j], k_hi[j], phase[j], g0[j]
-            )
+            out[j] = pair_value_db(mx, my, jx, jy, s0_db[j], sigma_db[j], decorrelation_m, cosines[j], g0[j])
         else:
-            out[j] = pair_field_db(
-                jx, jy, mx, my, s0_db[j], sigma_db[j], decorrelation_m, k_lo[j], k_hi[j], phase[j], g0[j]
-            )
+            out[j] = pair_value_db(jx, jy, mx, my, s0_db[j], sigma_db[j], decorrelation_m, cosines[j], g0[j])
 
 
 @njit(cache=True)
