@@ -18,7 +18,11 @@ least disturbed run). Writes ``benchmarks/results/bench_tasks.json``; ``docs/per
 ("Benchmark tasks (issue 27)") quotes it next to the targets (SingleMover-v3 K = 16 >= 50k agent-steps/s
 with resets, Cooperative-v0 >= 30k).
 
-    python benchmarks/bench_tasks.py [--copies 16] [--repeats 3] [--steps 300] [--coop-steps 500]
+Also a ``cold`` run as a user's script gets it: a new process imports the package, makes the K-copy vector
+env with ``start_pool=64``, resets it and steps ``--cold-steps`` vector steps (the pool's starts are made the
+first time each is drawn), timed over the whole process and over the loop.
+
+    python benchmarks/bench_tasks.py [--copies 16] [--repeats 3] [--steps 300] [--coop-steps 500] [--cold-steps 2000]
 """
 
 from __future__ import annotations
@@ -135,6 +139,36 @@ def cooperative(steps: int, setting: str) -> float:
     return steps * env.n / elapsed
 
 
+COLD_RUN = """
+import sys, time
+t0 = time.perf_counter()
+import gymnasium, numpy as np
+import cv2x_marl.env
+copies, steps = int(sys.argv[1]), int(sys.argv[2])
+envs = gymnasium.make_vec("cv2x/SingleMover-v3", num_envs=copies, vectorization_mode="vector_entry_point",
+                          max_cycles=100, start_pool=64)
+envs.reset(seed=0)
+acts = np.random.default_rng(0).uniform(-1, 1, (64, copies, 2)).astype(np.float32)
+t1 = time.perf_counter()
+for k in range(steps):
+    envs.step(acts[k % 64])
+t2 = time.perf_counter()
+print(steps * copies / (t2 - t0), steps * copies / (t2 - t1))
+"""
+
+
+def cold_single_mover(copies: int, steps: int) -> tuple[float, float]:
+    """A user's run in a new process: import, ``make_vec(..., start_pool=64)``, ``reset(seed=0)``, ``steps``
+    vector steps with SameStep autoreset (every pool start drawn the first time is a fresh stage-1 run).
+    Returns agent-steps/s over the whole process (start-up included) and over the stepping loop."""
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", COLD_RUN, str(copies), str(steps)], capture_output=True, text=True, check=True
+    ).stdout.split()
+    return float(out[0]), float(out[1])
+
+
 def reset_ms(env_id: str, pool: int, count: int) -> float:
     """Mean ms per ``reset()`` of one parallel env (fresh seeds, or from the warm pool)."""
     from cv2x_marl.env.registry import make_parallel_env
@@ -155,6 +189,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=300, help="vector steps timed per SingleMover run")
     ap.add_argument("--coop-steps", type=int, default=500, help="Cooperative steps timed per run")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument(
+        "--cold-steps", type=int, default=2000, help="vector steps of the cold-process SingleMover run (0: skip)"
+    )
     args = ap.parse_args()
     rows: dict[str, Any] = {
         "machine": f"{cpu_model()}, {os.cpu_count()} logical CPUs (one thread used)",
@@ -179,6 +216,16 @@ def main() -> None:
             key = f"{name}_reset_ms_{label}"
             rows[key] = min(reset_ms(env_id, pool, count) for _ in range(args.repeats))
             print(f"{env_id} reset ({label}): {rows[key]:.2f} ms", flush=True)
+    if args.cold_steps:
+        runs = [cold_single_mover(args.copies, args.cold_steps) for _ in range(args.repeats)]
+        whole, loop = max(r[0] for r in runs), max(r[1] for r in runs)
+        key = f"single_mover_v3_k{args.copies}_cold_{args.cold_steps * args.copies}"
+        rows[f"{key}_whole_process"], rows[f"{key}_loop"] = whole, loop
+        print(
+            f"SingleMover-v3 K={args.copies} cold process, {args.cold_steps * args.copies:,} agent-steps: "
+            f"{whole:,.0f} agent-steps/s whole process, {loop:,.0f} in the loop",
+            flush=True,
+        )
     for env_id, name in (
         ("cv2x/SingleMover-v3", f"single_mover_v3_k{args.copies}"),
         ("cv2x/Cooperative-v0", "cooperative_v0"),
