@@ -52,7 +52,7 @@ from cv2x_marl.sim.shadow_field import ShadowField
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 #: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far), and with
 #: ``drive_observation`` (the vehicle's speed and lane now)
-EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean"), ("speed_mps", "lane")
+EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean", "jain_mean"), ("speed_mps", "lane")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -326,6 +326,7 @@ class MobilityEnv(ParallelEnv):
         self.prr0 = self.prr.copy()
         self._u_sum = np.zeros(self.n)  # sums over the episode's steps (episode_metrics)
         self._prr_sum = np.zeros(self.n)
+        self._jain_sum = np.zeros(self.n)
         self._base_prev = self._rewards(self.utility).copy()
         if self.layout.version >= 1:
             self._reset_v1_state(None if cached is None else cached.plan_m)
@@ -375,6 +376,7 @@ class MobilityEnv(ParallelEnv):
         self._summarise()
         self._u_sum += self.utility
         self._prr_sum += self.prr
+        self._jain_sum += self.jain
         if self.layout.version == 3:  # one more period of sensing at the new positions
             self.measure.update(self._rx_dbm, self.link_p)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
@@ -652,7 +654,8 @@ class MobilityEnv(ParallelEnv):
         cols = [self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped]
         if self.options.episode_metrics:  # the means over the steps so far (at reset: the start's)
             steps = max(self.t, 1)
-            cols += [self._u_sum / steps, self._prr_sum / steps] if self.t else [self.utility, self.prr]
+            sums = (self._u_sum, self._prr_sum, self._jain_sum)
+            cols += [x / steps for x in sums] if self.t else [self.utility, self.prr, self.jain]
             if self.layout.drive:
                 st = self.sim.state
                 assert isinstance(st, VehicleState)

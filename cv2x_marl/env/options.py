@@ -347,8 +347,8 @@ class EnvOptions:
     )
     episode_metrics: bool = _option(
         False,
-        "infos also carry `utility_mean` and `prr_mean`, the means of `utility` and `prr` over the episode's steps "
-        "so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
+        "infos also carry `utility_mean`, `prr_mean` and `jain_mean`, the means of `utility`, `prr` and `jain` over "
+        "the episode's steps so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
     )
 
     start_pool: int = _option(

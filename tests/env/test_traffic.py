@@ -90,12 +90,29 @@ def test_episode_metrics_are_the_average_of_the_step_infos() -> None:
     env = gym.make("cv2x/Traffic-v0", max_cycles=7)
     _, first = env.reset(seed=4)
     assert first["utility_mean"] == first["utility"] and first["prr_mean"] == first["prr"]
+    assert first["jain_mean"] == first["jain"]
     steps = _run(env, np.tile(np.array([0.3, 0.0], np.float32), (7, 1)))
     infos = [s[4] for s in steps]
     assert steps[-1][3] is True
-    assert infos[-1]["utility_mean"] == pytest.approx(np.mean([i["utility"] for i in infos]), rel=1e-12)
-    assert infos[-1]["prr_mean"] == pytest.approx(np.mean([i["prr"] for i in infos]), rel=1e-12)
+    for key in ("utility", "prr", "jain"):  # every step's mean so far: the average of the periods' values
+        for t in range(1, 8):
+            want = np.mean([i[key] for i in infos[:t]])
+            assert infos[t - 1][f"{key}_mean"] == pytest.approx(want, rel=1e-12)
+    assert len({i["jain"] for i in infos}) > 1  # the periods differ: the last one is not the mean
     assert [s[1] for s in steps] == [i["utility"] for i in infos]  # reward: the period's utility per receiver
+    # evaluate's rows: jain_mean is the episode's mean (jain_end the last period's), jain_fairness their mean
+    par = make_parallel_env("cv2x/Traffic-v0", max_cycles=7)
+    obs, _ = par.reset(seed=4)
+    policy = make_policy("static", par)
+    policy.reset(4)
+    jains = []
+    while par.agents:
+        obs, _, _, _, inf = par.step({**{a: np.zeros(2, np.float32) for a in par.agents}, **policy.act(obs)})
+        jains.append(inf["vehicle_0"]["jain"])
+    summary, rows = ev.evaluate_rows("cv2x/Traffic-v0", "static", 0, 0, env_kwargs={"max_cycles": 7},
+                                     progress=False, seeds=[4])  # fmt: skip
+    assert rows[0]["jain_mean"] == pytest.approx(sum(jains) / 7, rel=1e-12) and rows[0]["jain_end"] == jains[-1]
+    assert summary["jain_fairness"] == rows[0]["jain_mean"]
 
 
 def test_seeding_same_trajectory_and_the_checker() -> None:
