@@ -313,8 +313,10 @@ class MobilityEnv(ParallelEnv):
                     rng = env_stream(episode_seed, "shadow_field")
                     field = ShadowField.draw(self.config, snap.positions_m, snap.shadowing_db, snap.los, rng)
                 self.links = SnapshotLinks(self.config, snap, self.truth_los, field=field)
-        else:
-            self.sim, snap, self.links = cached.sim, cached.snapshot, cached.links
+        else:  # traffic mode: a copy of the kept simulator (the episode runs it on); links are snapshot mode's
+            self.sim, snap, links = cached.open()
+            if links is not None:
+                self.links = links
         self.snapshot = snap
         self.start_m = snap.positions_m.copy()
         self.positions_m = snap.positions_m.copy()
