@@ -51,7 +51,6 @@ from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
-from cv2x_marl.sim.mobility import VehicleState, headings
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.shadow_field import ShadowField
 
@@ -513,14 +512,14 @@ class MobilityEnv(ParallelEnv):
         self.sim.set_drive(*self.speed_targets(act), self.options.accel_mps2, self.options.decel_mps2)
 
     def _command_sumo(self, act: NDArray[np.float64]) -> None:
-        """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands
-        (the settle phase hands the movers back to SUMO's driver)."""
+        """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands (the settle
+        phase hands the movers back to SUMO's driver; with the driving observation, Traffic-v0, up to the limit)."""
         from cv2x_marl.sim import sumo
 
         target, lanes = self.speed_targets(act)  # NaN: no command (the vehicles that do not move)
         if self.t >= self.max_cycles - self.settle_steps:
             target[self.mover_mask] = -1.0  # SUMO's own driver again
-        sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0)
+        sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0, up_to_limit=self.layout.drive)
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
@@ -637,10 +636,10 @@ class MobilityEnv(ParallelEnv):
 
     def _fill_drive(self, obs: NDArray[np.float32]) -> None:
         """The driving entries of every vehicle into ``obs`` [N, size] (:func:`~.observation.fill_drive`)."""
-        st, lanes, limit = self.sim.state, self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
-        assert isinstance(st, VehicleState)
+        lanes, limit = self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
+        speed, heading, lane = step_core.drive_state(self.sim, lanes)
         left = max(self.horizon - self.t, 0) / self.horizon
-        fill_drive(obs, self.layout, st.speed_mps / limit, headings(st), st.lane, lanes, left)
+        fill_drive(obs, self.layout, speed / limit, heading, lane, lanes, left)
 
     def _fill_v3(self, obs: NDArray[np.float32], rows: NDArray[np.int64]) -> None:
         """Observation version 3's measured and own entries of agents ``rows`` (into ``obs`` [A, size])."""
@@ -666,9 +665,8 @@ class MobilityEnv(ParallelEnv):
             sums = (self._u_sum, self._prr_sum, self._jain_sum)
             cols += [x / steps for x in sums] if self.t else [self.utility, self.prr, self.jain]
             if self.layout.drive:
-                st = self.sim.state
-                assert isinstance(st, VehicleState)
-                cols += [st.speed_mps, st.lane]
+                speed, _, lane = step_core.drive_state(self.sim, self.config.road.lanes_per_direction)
+                cols += [speed, lane]
         table = np.stack(cols, axis=1).tolist()
         keys = self.info_keys
         return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}

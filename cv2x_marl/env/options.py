@@ -328,7 +328,7 @@ class EnvOptions:
     accel_mps2: float = _option(
         ACCEL_MPS2,
         "`traffic_action=speed` on the lane model (`vehicles.mobility=model`): the most a commanded speed rises "
-        "per second (SUMO's default passenger-car `accel`)",
+        "per second (SUMO's default passenger-car `accel`; on SUMO its vehicle type's bounds apply: the default only)",
         "m/s^2",
         lo=0.0,
         lo_open=True,
@@ -336,15 +336,16 @@ class EnvOptions:
     decel_mps2: float = _option(
         DECEL_MPS2,
         "`traffic_action=speed` on the lane model: the most a commanded speed falls per second (AASHTO's "
-        "comfortable deceleration)",
+        "comfortable deceleration; on SUMO its vehicle type's bounds apply: the default only)",
         "m/s^2",
         lo=0.0,
         lo_open=True,
     )
     drive_observation: bool = _option(
         False,
-        "`traffic_action=speed` on the lane model: append the driving entries to the observation (own speed / "
-        "limit, heading, lane, lanes left / right, time left; `cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
+        "`traffic_action=speed` on the lane model or SUMO's generated network: append the driving entries to the "
+        "observation (own speed / limit, heading, lane, lanes left / right, time left; "
+        "`cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
     )
     episode_metrics: bool = _option(
         False,
@@ -481,8 +482,19 @@ class EnvOptions:
                     "libsumo runs one simulation per process that cannot be copied; replay a trace: "
                     "vehicles.mobility=trace)",
                 )
-        if self.drive_observation and cfg.vehicles.mobility != "model":
-            refuse("drive_observation", self.drive_observation, "false unless vehicles.mobility is model")
+        sumo = cfg.vehicles.mobility == "sumo"
+        if self.drive_observation and not (cfg.vehicles.mobility == "model" or (sumo and not cfg.vehicles.sumo_config)):
+            refuse(
+                "drive_observation",
+                self.drive_observation,
+                "false unless vehicles.mobility is model, or sumo on the generated network (vehicles.sumo_config "
+                "null: its lanes are road.lanes_per_direction)",
+            )
+        for name, default in (("accel_mps2", ACCEL_MPS2), ("decel_mps2", DECEL_MPS2)):
+            if sumo and self.mode == "traffic" and getattr(self, name) != default:
+                refuse(
+                    name, getattr(self, name), f"{default} with vehicles.mobility=sumo (SUMO's vehicle type bounds it)"
+                )
 
 
 def options_markdown() -> str:
