@@ -8,13 +8,15 @@
     parallel_env_v2 / env_v2   the same for ``cv2x/Mobility-v2`` (observation version 2: the sensing plan)
     parallel_env_v3 / env_v3   the same for ``cv2x/Mobility-v3`` (plan-free observation version 3, shadowing field)
     parallel_env_cooperative / env_cooperative   ``cv2x/Cooperative-v0`` (every vehicle moves, team reward)
+    parallel_env_traffic / env_traffic           ``cv2x/Traffic-v0`` (vehicles drive; vehicle 0, or with
+                                                 ``movers=None`` every vehicle, commands its speed and lane)
 
 The ids, the factories and their registration are :mod:`cv2x_marl.env.registry`'s: ``import
-cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0`` (``pettingzoo.make("parallel", ...)``
-and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium envs ``cv2x/SingleMover-v0``
-.. ``-v3``. :class:`MobilityEnv` and :class:`ObservationLayout` are imported on first use,
-so that importing the package (the registry, for the CLI's ``--env`` choices) does not import the
-env itself (about 0.9 s measured).
+cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0``, ``cv2x/Traffic-v0``
+(``pettingzoo.make("parallel", ...)`` and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium
+envs ``cv2x/SingleMover-v0`` .. ``-v3`` and ``cv2x/Traffic-v0``. :class:`MobilityEnv` and
+:class:`ObservationLayout` are imported on first use, so that importing the package (the registry, for
+the CLI's ``--env`` choices) does not import the env itself (about 0.9 s measured).
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ from typing import TYPE_CHECKING, Any
 from cv2x_marl.env.registry import (
     env,
     env_cooperative,
+    env_traffic,
     env_v1,
     env_v2,
     env_v3,
     parallel_env,
     parallel_env_cooperative,
+    parallel_env_traffic,
     parallel_env_v1,
     parallel_env_v2,
     parallel_env_v3,
@@ -55,11 +59,13 @@ __all__ = [
     "ObservationLayout",
     "env",
     "env_cooperative",
+    "env_traffic",
     "env_v1",
     "env_v2",
     "env_v3",
     "parallel_env",
     "parallel_env_cooperative",
+    "parallel_env_traffic",
     "parallel_env_v1",
     "parallel_env_v2",
     "parallel_env_v3",

@@ -31,7 +31,14 @@ from cv2x_marl.env.observation import (
     fill_measured,
     fill_own_v3,
 )
-from cv2x_marl.env.options import COOPERATIVE_DEFAULTS, V1_DEFAULTS, V2_DEFAULTS, V3_DEFAULTS, EnvOptions
+from cv2x_marl.env.options import (
+    COOPERATIVE_DEFAULTS,
+    TRAFFIC_DEFAULTS,
+    V1_DEFAULTS,
+    V2_DEFAULTS,
+    V3_DEFAULTS,
+    EnvOptions,
+)
 from cv2x_marl.env.planning import (
     PLAN_GRID_M,
     SearchGridError,
@@ -44,7 +51,6 @@ from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
 from cv2x_marl.sim.metrics import CAUSE_CODE
-from cv2x_marl.sim.mobility import VehicleState, headings
 from cv2x_marl.sim.road import Road
 from cv2x_marl.sim.shadow_field import ShadowField
 
@@ -52,7 +58,7 @@ from cv2x_marl.sim.shadow_field import ShadowField
 INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
 #: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far), and with
 #: ``drive_observation`` (the vehicle's speed and lane now)
-EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean"), ("speed_mps", "lane")
+EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean", "jain_mean"), ("speed_mps", "lane")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -306,8 +312,10 @@ class MobilityEnv(ParallelEnv):
                     rng = env_stream(episode_seed, "shadow_field")
                     field = ShadowField.draw(self.config, snap.positions_m, snap.shadowing_db, snap.los, rng)
                 self.links = SnapshotLinks(self.config, snap, self.truth_los, field=field)
-        else:
-            self.sim, snap, self.links = cached.sim, cached.snapshot, cached.links
+        else:  # traffic mode: a copy of the kept simulator (the episode runs it on); links are snapshot mode's
+            self.sim, snap, links = cached.open()
+            if links is not None:
+                self.links = links
         self.snapshot = snap
         self.start_m = snap.positions_m.copy()
         self.positions_m = snap.positions_m.copy()
@@ -326,6 +334,7 @@ class MobilityEnv(ParallelEnv):
         self.prr0 = self.prr.copy()
         self._u_sum = np.zeros(self.n)  # sums over the episode's steps (episode_metrics)
         self._prr_sum = np.zeros(self.n)
+        self._jain_sum = np.zeros(self.n)
         self._base_prev = self._rewards(self.utility).copy()
         if self.layout.version >= 1:
             self._reset_v1_state(None if cached is None else cached.plan_m)
@@ -375,6 +384,7 @@ class MobilityEnv(ParallelEnv):
         self._summarise()
         self._u_sum += self.utility
         self._prr_sum += self.prr
+        self._jain_sum += self.jain
         if self.layout.version == 3:  # one more period of sensing at the new positions
             self.measure.update(self._rx_dbm, self.link_p)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
@@ -502,14 +512,14 @@ class MobilityEnv(ParallelEnv):
         self.sim.set_drive(*self.speed_targets(act), self.options.accel_mps2, self.options.decel_mps2)
 
     def _command_sumo(self, act: NDArray[np.float64]) -> None:
-        """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands
-        (the settle phase hands the movers back to SUMO's driver)."""
+        """``traffic_action="speed"``: the movers' actions [N, 2] as SUMO speed and lane commands (the settle
+        phase hands the movers back to SUMO's driver; with the driving observation, Traffic-v0, up to the limit)."""
         from cv2x_marl.sim import sumo
 
         target, lanes = self.speed_targets(act)  # NaN: no command (the vehicles that do not move)
         if self.t >= self.max_cycles - self.settle_steps:
             target[self.mover_mask] = -1.0  # SUMO's own driver again
-        sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0)
+        sumo.lockstep_of(self.sim).command(target, lanes, self.sim.rri / 1000.0, up_to_limit=self.layout.drive)
 
     # ------------------------------------------------------------------ pieces
     def _decode(self, actions: dict[str, Any]) -> NDArray[np.float64]:
@@ -626,10 +636,10 @@ class MobilityEnv(ParallelEnv):
 
     def _fill_drive(self, obs: NDArray[np.float32]) -> None:
         """The driving entries of every vehicle into ``obs`` [N, size] (:func:`~.observation.fill_drive`)."""
-        st, lanes, limit = self.sim.state, self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
-        assert isinstance(st, VehicleState)
+        lanes, limit = self.config.road.lanes_per_direction, self.config.vehicles.speed_max_mps
+        speed, heading, lane = step_core.drive_state(self.sim, lanes)
         left = max(self.horizon - self.t, 0) / self.horizon
-        fill_drive(obs, self.layout, st.speed_mps / limit, headings(st), st.lane, lanes, left)
+        fill_drive(obs, self.layout, speed / limit, heading, lane, lanes, left)
 
     def _fill_v3(self, obs: NDArray[np.float32], rows: NDArray[np.int64]) -> None:
         """Observation version 3's measured and own entries of agents ``rows`` (into ``obs`` [A, size])."""
@@ -652,11 +662,11 @@ class MobilityEnv(ParallelEnv):
         cols = [self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped]
         if self.options.episode_metrics:  # the means over the steps so far (at reset: the start's)
             steps = max(self.t, 1)
-            cols += [self._u_sum / steps, self._prr_sum / steps] if self.t else [self.utility, self.prr]
+            sums = (self._u_sum, self._prr_sum, self._jain_sum)
+            cols += [x / steps for x in sums] if self.t else [self.utility, self.prr, self.jain]
             if self.layout.drive:
-                st = self.sim.state
-                assert isinstance(st, VehicleState)
-                cols += [st.speed_mps, st.lane]
+                speed, _, lane = step_core.drive_state(self.sim, self.config.road.lanes_per_direction)
+                cols += [speed, lane]
         table = np.stack(cols, axis=1).tolist()
         keys = self.info_keys
         return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}
@@ -768,3 +778,15 @@ class CooperativeEnv(MobilityEnv):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**{**COOPERATIVE_DEFAULTS, **kwargs})
+
+
+class TrafficParallelEnv(MobilityEnv):
+    """``cv2x/Traffic-v0`` as a PettingZoo ParallelEnv: :class:`MobilityEnv` with :data:`TRAFFIC_DEFAULTS`, every
+    vehicle an agent; ``movers`` (default ``[0]``: the Gymnasium id's task) drive with their own speed and lane
+    commands, ``movers=None`` makes every vehicle drive; each agent is rewarded with its own period's eq. 12
+    utility per target receiver; keyword arguments as :class:`MobilityEnv`."""
+
+    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_traffic_v0"}
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**{**TRAFFIC_DEFAULTS, "movers": [0], **kwargs})

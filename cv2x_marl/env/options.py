@@ -280,9 +280,10 @@ class EnvOptions:
     )
     reset_cache: int = _option(
         0,
-        "snapshot mode: keep up to this many episode starts (stage-1 snapshot, links, plan) in a process-wide "
-        "cache shared by envs with the same settings; `reset(seed=s)` for a cached `s` reuses them, "
-        "bit-identical to computing them (24 ms -> 0.7 ms on `SingleMover-v2`); 0: no cache",
+        "keep up to this many episode starts (stage-1 snapshot, links, plan; traffic mode: the simulator after its "
+        "warm-up, copied for each episode) in a process-wide cache shared by envs with the same settings; "
+        "`reset(seed=s)` for a cached `s` reuses them, bit-identical to computing them (24 ms -> 0.7 ms on "
+        "`SingleMover-v2`; 6.0 ms -> 1.5 ms on `Traffic-v0`); not with SUMO lockstep in traffic mode; 0: no cache",
         "starts",
         lo=0,
     )
@@ -327,7 +328,7 @@ class EnvOptions:
     accel_mps2: float = _option(
         ACCEL_MPS2,
         "`traffic_action=speed` on the lane model (`vehicles.mobility=model`): the most a commanded speed rises "
-        "per second (SUMO's default passenger-car `accel`)",
+        "per second (SUMO's default passenger-car `accel`; on SUMO its vehicle type's bounds apply: the default only)",
         "m/s^2",
         lo=0.0,
         lo_open=True,
@@ -335,28 +336,29 @@ class EnvOptions:
     decel_mps2: float = _option(
         DECEL_MPS2,
         "`traffic_action=speed` on the lane model: the most a commanded speed falls per second (AASHTO's "
-        "comfortable deceleration)",
+        "comfortable deceleration; on SUMO its vehicle type's bounds apply: the default only)",
         "m/s^2",
         lo=0.0,
         lo_open=True,
     )
     drive_observation: bool = _option(
         False,
-        "`traffic_action=speed` on the lane model: append the driving entries to the observation (own speed / "
-        "limit, heading, lane, lanes left / right, time left; `cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
+        "`traffic_action=speed` on the lane model or SUMO's generated network: append the driving entries to the "
+        "observation (own speed / limit, heading, lane, lanes left / right, time left; "
+        "`cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
     )
     episode_metrics: bool = _option(
         False,
-        "infos also carry `utility_mean` and `prr_mean`, the means of `utility` and `prr` over the episode's steps "
-        "so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
+        "infos also carry `utility_mean`, `prr_mean` and `jain_mean`, the means of `utility`, `prr` and `jain` over "
+        "the episode's steps so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
     )
 
     start_pool: int = _option(
         0,
-        "snapshot mode: `reset()` without a seed starts from one of the first `start_pool` seeds of the protocol's "
+        "`reset()` without a seed starts from one of the first `start_pool` seeds of the protocol's "
         "training list (`cv2x_marl.env.seeds.TRAIN_SEEDS`, disjoint from every task's held-out list), drawn by the "
         "env's generator, and their starts are kept (the cache holds `max(reset_cache, start_pool)`): fast resets "
-        "for training; `reset(seed=s)` still runs episode `s`; 0: fresh seeds",
+        "for training (traffic mode: not with SUMO lockstep); `reset(seed=s)` still runs episode `s`; 0: fresh seeds",
         "starts",
         lo=0,
         hi=4096,
@@ -419,10 +421,6 @@ class EnvOptions:
             refuse("settle_steps", self.settle_steps, "integer in [0, max_cycles)")
         if self.replan_every is not None and self.observation != 2:
             refuse("replan_every", self.replan_every, "null unless observation is 2")
-        if self.reset_cache and self.mode != "snapshot":
-            refuse("reset_cache", self.reset_cache, "0 unless mode is snapshot")
-        if self.start_pool and self.mode != "snapshot":
-            refuse("start_pool", self.start_pool, "0 unless mode is snapshot")
         if self.drive_observation and (self.mode != "traffic" or self.traffic_action != "speed"):
             refuse(
                 "drive_observation", self.drive_observation, "false unless mode is traffic with traffic_action speed"
@@ -475,8 +473,28 @@ class EnvOptions:
                 self.traffic_action,
                 " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=model or sumo)",
             )
-        if self.drive_observation and cfg.vehicles.mobility != "model":
-            refuse("drive_observation", self.drive_observation, "false unless vehicles.mobility is model")
+        for name in ("reset_cache", "start_pool"):  # a kept start is a copy of the simulator: not of libsumo's
+            if getattr(self, name) and self.mode == "traffic" and cfg.vehicles.mobility == "sumo":
+                refuse(
+                    name,
+                    getattr(self, name),
+                    "0 in traffic mode with vehicles.mobility=sumo (a kept start is a copy of the simulator, and "
+                    "libsumo runs one simulation per process that cannot be copied; replay a trace: "
+                    "vehicles.mobility=trace)",
+                )
+        sumo = cfg.vehicles.mobility == "sumo"
+        if self.drive_observation and not (cfg.vehicles.mobility == "model" or (sumo and not cfg.vehicles.sumo_config)):
+            refuse(
+                "drive_observation",
+                self.drive_observation,
+                "false unless vehicles.mobility is model, or sumo on the generated network (vehicles.sumo_config "
+                "null: its lanes are road.lanes_per_direction)",
+            )
+        for name, default in (("accel_mps2", ACCEL_MPS2), ("decel_mps2", DECEL_MPS2)):
+            if sumo and self.mode == "traffic" and getattr(self, name) != default:
+                refuse(
+                    name, getattr(self, name), f"{default} with vehicles.mobility=sumo (SUMO's vehicle type bounds it)"
+                )
 
 
 def options_markdown() -> str:

@@ -8,7 +8,9 @@ Two families of four versions each, and the cooperative task (the defaults of ea
                           by :mod:`cv2x_marl.env.vector` (``gymnasium.make_vec(..., "vector_entry_point")``)
     cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
     cv2x/Traffic-v0       Gymnasium, vehicles drive (lane model), vehicle 0 commands its speed and lane
-                          (:class:`~cv2x_marl.env.single.TrafficEnv`)
+                          (:class:`~cv2x_marl.env.single.TrafficEnv`); also PettingZoo
+                          (:class:`~cv2x_marl.env.mobility_env.TrafficParallelEnv`: every vehicle an agent,
+                          vehicle 0 drives, ``movers=None``: every vehicle drives)
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
@@ -16,7 +18,8 @@ Gymnasium / PettingZoo is already imported, else when it is imported (an import 
 so a fresh process (a Ray worker, a subprocess) resolves the Gymnasium ids with
 ``gymnasium.make("cv2x_marl:cv2x/SingleMover-v2")``, which imports the package first; PettingZoo has
 no such syntax: frameworks take the factories (:func:`parallel_env`, :func:`parallel_env_v1` ..
-:func:`parallel_env_v3`, :func:`cooperative_parallel_env`, re-exported by :mod:`cv2x_marl.env`) instead.
+:func:`parallel_env_v3`, :func:`parallel_env_cooperative`, :func:`parallel_env_traffic`, re-exported by
+:mod:`cv2x_marl.env`) instead.
 
 This module imports only the standard library at its top, so the CLI reads :data:`ENV_IDS` for its
 ``--env`` choices without importing the env (about 0.9 s measured: PettingZoo, numba, the simulator);
@@ -45,7 +48,7 @@ MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
 SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
 #: the cooperative task (PettingZoo; every vehicle moves, team reward)
 COOPERATIVE_IDS = ("cv2x/Cooperative-v0",)
-#: the traffic task (Gymnasium; vehicle 0 drives with speed and lane commands)
+#: the traffic task (Gymnasium and PettingZoo; vehicle 0 drives with speed and lane commands)
 TRAFFIC_IDS = ("cv2x/Traffic-v0",)
 #: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
 ENV_IDS = (
@@ -67,6 +70,7 @@ _GYM_CLASSES = {
 _PETTINGZOO_SUFFIX = {
     **{i: ("" if v == "v0" else f"_{v}") for v, i in zip(VERSIONS, MOBILITY_IDS, strict=True)},
     "cv2x/Cooperative-v0": "_cooperative",
+    "cv2x/Traffic-v0": "_traffic",
 }
 
 
@@ -85,13 +89,16 @@ def env_version(env_id: str) -> str:
 
 def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     """The parallel env behind a registered id with its version's defaults (SingleMover: only
-    vehicle 0 moves); ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults."""
+    vehicle 0 moves; Traffic: vehicle 0 drives unless ``movers`` says who does, ``None``: every vehicle);
+    ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults."""
     from cv2x_marl.env.mobility_env import MobilityEnv
     from cv2x_marl.env.options import VERSION_DEFAULTS
 
     version = env_version(env_id)
-    if env_id in SINGLE_MOVER_IDS or env_id in TRAFFIC_IDS:
+    if env_id in SINGLE_MOVER_IDS:
         kwargs = {**kwargs, "movers": [0]}
+    elif env_id in TRAFFIC_IDS:
+        kwargs = {"movers": [0], **kwargs}
     return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs})
 
 
@@ -131,6 +138,14 @@ def parallel_env_cooperative(**kwargs: Any) -> MobilityEnv:
     from cv2x_marl.env.mobility_env import CooperativeEnv
 
     return CooperativeEnv(**kwargs)
+
+
+def parallel_env_traffic(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Traffic-v0`` as a ParallelEnv: vehicles drive the lane model, vehicle 0 commands its speed and lane
+    (``movers=None``: every vehicle drives its own, each rewarded with its own period utility)."""
+    from cv2x_marl.env.mobility_env import TrafficParallelEnv
+
+    return TrafficParallelEnv(**kwargs)
 
 
 def raw_env(**kwargs: Any) -> Any:
@@ -173,6 +188,13 @@ def env_cooperative(**kwargs: Any) -> Any:
     from pettingzoo.utils.conversions import parallel_to_aec
 
     return parallel_to_aec(parallel_env_cooperative(**kwargs))
+
+
+def env_traffic(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Traffic-v0`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_traffic(**kwargs))
 
 
 # -- registration -----------------------------------------------------------------------------------

@@ -132,7 +132,9 @@ class TrafficEnv(SingleMoverEnv):
     within ``accel_mps2`` / ``decel_mps2``) and its lane (``action[1]`` > 0.5 / < -0.5: one lane left /
     right, where one exists); the reward is the period's eq. 12 utility of its actual transmissions per
     target receiver; the observation is v0's block plus the driving entries; the infos carry the episode's
-    means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``)."""
+    means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``). ``preset="sumo-grid"``: SUMO
+    drives instead of the lane model; the same id in PettingZoo is
+    :class:`~cv2x_marl.env.mobility_env.TrafficParallelEnv`."""
 
     defaults = "traffic-v0"
     label = "Traffic-v0"

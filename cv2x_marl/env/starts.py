@@ -2,16 +2,23 @@
 
 A start is what :meth:`~cv2x_marl.env.mobility_env.MobilityEnv.reset` computes for an episode seed before
 the first step: the stage-1 run (SPS warm-up, 20-30 ms) and its snapshot, the snapshot's links (with the
-episode's shadowing field) and the plan. ``reset_cache=C`` keeps up to C of them in :data:`START_CACHE`,
-shared by every env of the process with the same settings, so that ``reset(seed=s)`` for a cached ``s``
-reuses them (bit-identical to computing them). ``start_pool=P`` makes ``reset()`` without a seed draw its
-episode seed from the first P seeds of the protocol's training list
-(:func:`cv2x_marl.env.seeds.training_pool`, disjoint from every task's held-out list) and keeps their
-starts (the cache holds at least P): after the first P distinct starts, resets cost a copy of the start.
+episode's shadowing field) and the plan. In traffic mode it is the simulator after its warm-up (most of a
+``cv2x/Traffic-v0`` reset): the episode runs that simulator on, so the cache keeps a copy of it and every
+episode from the cache runs on a fresh copy of that (:func:`copy_simulator`: its state and random streams
+copied, so the episode is the fresh one bit for bit). SUMO lockstep (``vehicles.mobility=sumo``) is
+refused there: libsumo's one simulation per process cannot be copied.
+
+``reset_cache=C`` keeps up to C of them in :data:`START_CACHE`, shared by every env of the process with the
+same settings, so that ``reset(seed=s)`` for a cached ``s`` reuses them (bit-identical to computing them).
+``start_pool=P`` makes ``reset()`` without a seed draw its episode seed from the first P seeds of the
+protocol's training list (:func:`cv2x_marl.env.seeds.training_pool`, disjoint from every task's held-out
+list) and keeps their starts (the cache holds at least P): after the first P distinct starts, resets cost a
+copy of the start.
 """
 
 from __future__ import annotations
 
+import copy
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
@@ -30,12 +37,23 @@ MobilityEnv = Any
 class Start:
     """What :meth:`MobilityEnv.reset` computes for an episode seed that is worth keeping: the
     stage-1 run (SPS warm-up) and its snapshot, the snapshot's links and the plan (shared, never
-    modified in snapshot mode)."""
+    modified in snapshot mode; in traffic mode ``links`` is None and the simulator is a kept copy)."""
 
     sim: Simulator
     snapshot: Any
-    links: SnapshotLinks
+    links: SnapshotLinks | None
     plan_m: NDArray[np.float64]
+
+    def open(self) -> tuple[Simulator, Any, SnapshotLinks | None]:
+        """The simulator, snapshot and links an episode starts from: shared in snapshot mode (never
+        modified), a fresh copy of the simulator in traffic mode (the episode runs it on)."""
+        return (self.sim if self.links is not None else copy_simulator(self.sim)), self.snapshot, self.links
+
+
+def copy_simulator(sim: Simulator) -> Simulator:
+    """An independent copy of a simulator (state, SPS scheduler, random streams; the frozen configuration
+    shared): running it gives what running ``sim`` would, bit for bit."""
+    return copy.deepcopy(sim, {id(sim.config): sim.config})
 
 
 #: process-wide cache of episode starts: key -> start, oldest first (``reset_cache`` bounds it)
@@ -61,7 +79,8 @@ def cached_start(env: MobilityEnv, seed: int) -> Start | None:
 
 def store_start(env: MobilityEnv, seed: int) -> None:
     plan = getattr(env, "plan_m", env.positions_m)
-    START_CACHE[start_key(env, seed)] = Start(env.sim, env.snapshot, env.links, np.array(plan, dtype=np.float64))
+    sim, links = (env.sim, env.links) if env.mode == "snapshot" else (copy_simulator(env.sim), None)
+    START_CACHE[start_key(env, seed)] = Start(sim, env.snapshot, links, np.array(plan, dtype=np.float64))
     while len(START_CACHE) > cache_size(env):
         START_CACHE.popitem(last=False)
 

@@ -513,3 +513,20 @@ def decode_actions(
     act = np.zeros((n, 2))
     act[[agent_index[a] for a in actions]] = arr
     return act
+
+
+def drive_state(sim: Any, lanes_per_direction: int) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    """Speeds [N] (m/s), headings [N, 2] (unit vectors) and lanes [N] (0: next to the centre line) of a traffic-mode
+    simulator's vehicles: the lane model's state, or on SUMO lockstep SUMO's speed, angle and lane index (SUMO's
+    rightmost lane 0 is lane ``lanes_per_direction - 1`` here; on a junction's internal lanes their index, clipped
+    to the road's lanes)."""
+    from cv2x_marl.sim import mobility
+
+    st = sim.state
+    if isinstance(st, mobility.VehicleState):
+        return st.speed_mps, mobility.headings(st), st.lane
+    from cv2x_marl.sim import sumo
+
+    lock = sumo.lockstep_of(sim)
+    top = lanes_per_direction - 1
+    return st.speed_mps, lock.heading, np.clip(top - lock.lane_index, 0, top)

@@ -427,6 +427,8 @@ def evaluate_rows(
                             "return": returns[a],
                         }
                     )
+                    if means:  # Jain's index of the mover's links, mean over the episode's periods
+                        row["jain_mean"] = info["jain_mean"]
                     if u_opt is not None:
                         row["utility_optimum"] = float(u_opt[env.agent_index[a]])
                     rows.append(row)
@@ -453,7 +455,7 @@ def evaluate_rows(
             "mean_prr_gain": float(np.nanmean(pg)),
             "effectiveness": float(np.mean(ug > 1e-9)),
             "n_prr_drop": int(np.sum(pg < -1e-9)),
-            "jain_fairness": float(np.mean([r["jain_end"] for r in rows])),
+            "jain_fairness": float(np.mean([r["jain_mean" if means else "jain_end"] for r in rows])),
             "mean_return": float(np.mean([r["return"] for r in rows])),
             "mean_prr_start": float(np.mean(p0)),
             "mean_prr_end": float(np.mean(p1)),

@@ -43,15 +43,17 @@ PPO_PREFIX = "ppo:"
 OFFSET_POLICIES = ("gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response")
 
 
-#: the scripted policies with a road version (:mod:`cv2x_marl.policies.traffic`) where the movers drive the
-#: lane model with speed and lane commands and observe their driving entries (``cv2x/Traffic-v0``)
+#: the scripted policies with a road version (:mod:`cv2x_marl.policies.traffic`) where the movers drive with
+#: speed and lane commands and observe their driving entries (``cv2x/Traffic-v0``; on SUMO ``sensing`` is
+#: refused: it predicts with the lane model)
 ROAD_POLICIES = ("static", "random", "gbmu", "sensing", "optimum")
 
 
 def drives(env: MobilityEnv) -> bool:
-    """Whether ``env``'s movers drive the lane model with speed commands and observe their driving entries."""
+    """Whether ``env``'s movers drive (the lane model or SUMO) with speed commands and observe their driving
+    entries (``drive_observation``: only with traffic mode and speed actions)."""
     layout = getattr(env, "layout", None)
-    return bool(getattr(env, "drives", False) and layout is not None and layout.drive)
+    return bool(layout is not None and layout.drive)
 
 
 def refuse_action_space(spec: str, env: MobilityEnv) -> None:

@@ -14,6 +14,8 @@ so the offset movers are adapted, never reinterpreted (:func:`cv2x_marl.policies
 
 :func:`rollout` runs a policy or an action sequence on a copy of an env at the start of its episode:
 the env is deterministic given its episode seed and the actions, so a copy replays the episode exactly.
+On SUMO (``vehicles.mobility=sumo``: libsumo's one simulation per process cannot be copied) it runs on the
+env itself and then resets it to its episode seed, which gives the same start again (replay from the seed).
 """
 
 from __future__ import annotations
@@ -39,13 +41,20 @@ _SPEED = OWN_DRIVE_NAMES.index("speed")
 _HEADING = OWN_DRIVE_NAMES.index("heading_x")
 
 
-def check_drive_env(env: MobilityEnv, name: str) -> None:
-    """Refuse an env whose movers are not driven by speed commands with the driving observation."""
-    if not (getattr(env, "drives", False) and env.layout.drive):
+def check_drive_env(env: MobilityEnv, name: str, lane_model: bool = False) -> None:
+    """Refuse an env whose movers are not driven by speed commands with the driving observation (``lane_model``:
+    also one on SUMO, for a policy that predicts with the lane model)."""
+    if not env.layout.drive:
         raise ValueError(
-            f"policy {name!r} (road version) needs an env whose movers drive the lane model with speed and lane "
-            "commands and observe their driving entries (cv2x/Traffic-v0: mode=traffic, traffic_action=speed, "
-            "vehicles.mobility=model, drive_observation=true)"
+            f"policy {name!r} (road version) needs an env whose movers drive with speed and lane commands and "
+            "observe their driving entries (cv2x/Traffic-v0: mode=traffic, traffic_action=speed, "
+            "vehicles.mobility=model or sumo, drive_observation=true)"
+        )
+    if lane_model and not getattr(env, "drives", False):
+        raise ValueError(
+            f"policy {name!r} (road version) predicts the mover's positions with the lane model, so it cannot run "
+            "on SUMO (cv2x/Traffic-v0's sumo-grid option, vehicles.mobility=sumo); allowed there: static, random, "
+            "gbmu, optimum, ppo:PATH"
         )
 
 
@@ -131,17 +140,29 @@ def _mover(env: MobilityEnv) -> int:
 PolicyFactory = Callable[["MobilityEnv"], Policy]
 
 
+#: the road policies that predict with the lane model (refused on SUMO, left out of the ceiling's candidates there)
+LANE_MODEL_POLICIES = ("sensing",)
+
+
+def replays(env: MobilityEnv) -> bool:
+    """Whether :func:`rollout` replays ``env``'s episode from its seed in the env itself (SUMO lockstep: libsumo
+    cannot be copied) instead of stepping a copy."""
+    return bool(env.config.vehicles.mobility == "sumo")
+
+
 def rollout(
     start: MobilityEnv, make: PolicyFactory | None = None, actions: NDArray[np.float32] | None = None
 ) -> Rollout:
-    """Run the episode of ``start`` (an env just reset, left untouched: a copy is stepped) with the policy
-    ``make`` builds on the copy (reset with the episode seed, as `cv2x-marl evaluate` runs it) or the
-    mover's action sequence ``actions`` [T, 2]; the other vehicles' actions are zero (they do not move)."""
+    """Run the episode of ``start`` (an env just reset, left at its start: a copy is stepped; on SUMO the env
+    itself, then reset again with its episode seed, :func:`replays`) with the policy ``make`` builds on the env
+    it steps (reset with the episode seed, as `cv2x-marl evaluate` runs it) or the mover's action sequence
+    ``actions`` [T, 2]; the other vehicles' actions are zero (they do not move)."""
     if start.t != 0:
         raise ValueError("rollout needs an env at the start of its episode (just reset)")
     if (make is None) == (actions is None):
         raise ValueError("rollout takes a policy factory or an action sequence")
-    env = copy.deepcopy(start)
+    replay = replays(start)
+    env = start if replay else copy.deepcopy(start)
     policy = None if make is None else make(env)
     i = _mover(env)
     name = env.possible_agents[i]
@@ -161,7 +182,10 @@ def rollout(
         full[name] = act
         obs, *_ = env.step(full)
     t = max(env.t, 1)
-    return Rollout(np.array(taken, dtype=np.float32), float(env._u_sum[i] / t), float(env._prr_sum[i] / t))
+    out = Rollout(np.array(taken, dtype=np.float32), float(env._u_sum[i] / t), float(env._prr_sum[i] / t))
+    if replay:  # the start again: the same seed gives the same episode (SUMO's run included)
+        start.reset(seed=start.seed_used)
+    return out
 
 
 def reference_means(env: MobilityEnv, static: PolicyFactory) -> tuple[float, float]:
@@ -241,6 +265,9 @@ def traffic_search(
     in a copy of the env, so the search sees the other vehicles' future, their turns and every SPS draw).
     ``make(name, env)`` builds the seeded methods (:func:`cv2x_marl.policies.registry.make_policy`).
 
+    On SUMO every candidate is replayed from the episode seed in ``env`` itself (:func:`rollout`), and the
+    seeded methods that need the lane model (:data:`LANE_MODEL_POLICIES`) are left out.
+
     Candidates: the seeded methods' own sequences (:attr:`SearchSettings.seeded`), then cross-entropy
     iterations over piecewise-constant profiles (per segment ``action[0]`` Gaussian, started at the
     speed the mover has, plus full speed and standstill in the first population; lane commands
@@ -260,6 +287,8 @@ def traffic_search(
     scripted: dict[str, float] = {}
     evaluated = 0
     for name in settings.seeded:
+        if name in LANE_MODEL_POLICIES and not env.drives:  # on SUMO: refused (they predict with the lane model)
+            continue
         r = rollout(env, functools.partial(make, name))
         scripted[name] = r.utility_mean
         evaluated += 1
@@ -357,7 +386,7 @@ class RoadSensingPolicy:
     def __init__(
         self, env: MobilityEnv, levels: int = 9, horizon: int = 10, probe_every: int = 2, replan_every: int = 5
     ) -> None:
-        check_drive_env(env, self.name)
+        check_drive_env(env, self.name, lane_model=True)
         if env.config.channel.pathloss != "winner_b1" or env.truth_los == "geometry":
             raise ValueError(
                 "the road sensing planner needs channel.pathloss=winner_b1 and truth_los snapshot or always"

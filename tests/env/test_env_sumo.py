@@ -5,6 +5,7 @@ libsumo runs one simulation per process, so the envs below run one after the oth
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -106,3 +107,77 @@ def test_close_stops_sumo_and_copies_in_one_process_are_refused() -> None:
         AgentsVecEnv(lambda: parallel_env(preset="sumo-grid", mode="traffic", movers=[0]), 2)
     with pytest.raises(ValueError, match="cannot share one process"):
         SingleMoverVectorEnv(2, preset="sumo-grid", mode="traffic")
+
+
+def test_traffic_v0_sumo_option_drives_with_sumo_and_observes_its_state() -> None:
+    """``cv2x/Traffic-v0`` with ``preset="sumo-grid"``: SUMO drives every vehicle, vehicle 0's speed command goes to
+    SUMO's setSpeed (up to the limit, past the vehicle's own desired speed) within the vehicle type's acceleration
+    and deceleration; the driving entries are SUMO's own speed, angle and lane (queried from libsumo here), lane
+    commands reach SUMO, and the observation space is the lane model's."""
+    import gymnasium as gym
+    import libsumo
+
+    import cv2x_marl  # noqa: F401 - registers the ids
+
+    limit, dt = 16.67, 0.1
+    env = gym.make(
+        "cv2x/Traffic-v0", preset="sumo-grid", overrides=[*SHORT, "road.lanes_per_direction=2"], max_cycles=12
+    )
+    assert env.observation_space == gym.make("cv2x/Traffic-v0").observation_space
+    par = env.unwrapped.par
+    ob, info = env.reset(seed=5)
+    vid = par.sim.vehicle_ids[0]
+    accel, decel, own_v = (
+        libsumo.vehicle.getAccel(vid),
+        libsumo.vehicle.getDecel(vid),
+        libsumo.vehicle.getAllowedSpeed(vid),
+    )
+    speeds, lanes = [info["speed_mps"]], [info["lane"]]
+    for t in range(12):
+        act = np.array([1.0 if t < 6 else -1.0, -1.0 if t == 7 else 0.0], np.float32)  # full speed, stop; a lane right
+        ob, _, _, _, info = env.step(act)
+        speed, hx, hy, lane, left, right, _ = par.layout.own_drive(ob)
+        angle = np.deg2rad(libsumo.vehicle.getAngle(vid))
+        assert info["speed_mps"] == libsumo.vehicle.getSpeed(vid) <= limit
+        assert speed == np.float32(info["speed_mps"] / limit)
+        np.testing.assert_allclose([hx, hy], [np.sin(angle), np.cos(angle)], atol=1e-6)
+        want_lane = min(max(1 - libsumo.vehicle.getLaneIndex(vid), 0), 1)  # SUMO's rightmost lane 0: lane 1 here
+        assert info["lane"] == lane == want_lane and left == (want_lane > 0) and right == (want_lane < 1)
+        v, v_before = info["speed_mps"], speeds[-1]
+        assert v_before - decel * dt - 1e-9 <= v <= v_before + accel * dt + 1e-9  # the vehicle type's bounds
+        speeds.append(v)
+        lanes.append(info["lane"])
+    assert speeds[6] > own_v + 1.0 and speeds[6] > speeds[0]  # faster than its own desired speed: the command
+    assert all(b < a for a, b in itertools.pairwise(speeds[6:]))  # then the stop
+    assert lanes[:8] == [0.0] * 8 and lanes[8] == 1.0  # the left lane, then (step 7's command) the right one
+    env.close()
+
+
+def test_traffic_v0_sumo_option_policies_and_the_ceiling_replayed_from_the_seed() -> None:
+    """On SUMO the lane-model planner is refused naming the option; the ceiling replays every candidate from the
+    episode seed in the env itself (libsumo cannot be copied), is at least every seeded method, and leaves the env
+    at its start, bit for bit; the driving-only options are refused on SUMO."""
+    from cv2x_marl.env.registry import make_parallel_env
+    from cv2x_marl.policies import traffic
+    from cv2x_marl.policies.registry import make_policy
+
+    tiny = traffic.SearchSettings(segments=2, population=3, elites=1, iterations=1)
+    env = make_parallel_env("cv2x/Traffic-v0", preset="sumo-grid", overrides=SHORT, max_cycles=8)
+    obs0, _ = env.reset(seed=3)
+    with pytest.raises(ValueError, match=r"policy 'sensing' .* cannot run on SUMO \(cv2x/Traffic-v0's sumo-grid"):
+        make_policy("sensing", env)
+    assert isinstance(make_policy("static", env), traffic.HoldSpeedPolicy)
+    assert isinstance(make_policy("gbmu", env), traffic.RoadGbmuPolicy)
+    res = traffic.traffic_search(env, make_policy, tiny)
+    assert set(res.scripted) == {"static", "random", "gbmu"} and res.evaluated == 3 + 3  # sensing left out
+    assert all(res.best.utility_mean >= u for u in res.scripted.values())
+    assert traffic.rollout(env, actions=res.best.actions).utility_mean == res.best.utility_mean
+    assert env.t == 0
+    obs = env._observations()
+    assert all(np.array_equal(obs[a], obs0[a]) for a in env.agents)  # the start again, from the seed
+    env.close()
+    for name, value in (("accel_mps2", 3.0), ("decel_mps2", 5.0)):
+        with pytest.raises(ValueError, match=rf"invalid env argument {name}=.*SUMO's vehicle type bounds it"):
+            make_parallel_env("cv2x/Traffic-v0", preset="sumo-grid", **{name: value})
+    with pytest.raises(ValueError, match=r"invalid env argument drive_observation=True.*sumo on the generated network"):
+        make_parallel_env("cv2x/Traffic-v0", preset="sumo-grid", overrides=["vehicles.sumo_config=x.sumocfg"])

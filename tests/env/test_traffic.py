@@ -90,12 +90,29 @@ def test_episode_metrics_are_the_average_of_the_step_infos() -> None:
     env = gym.make("cv2x/Traffic-v0", max_cycles=7)
     _, first = env.reset(seed=4)
     assert first["utility_mean"] == first["utility"] and first["prr_mean"] == first["prr"]
+    assert first["jain_mean"] == first["jain"]
     steps = _run(env, np.tile(np.array([0.3, 0.0], np.float32), (7, 1)))
     infos = [s[4] for s in steps]
     assert steps[-1][3] is True
-    assert infos[-1]["utility_mean"] == pytest.approx(np.mean([i["utility"] for i in infos]), rel=1e-12)
-    assert infos[-1]["prr_mean"] == pytest.approx(np.mean([i["prr"] for i in infos]), rel=1e-12)
+    for key in ("utility", "prr", "jain"):  # every step's mean so far: the average of the periods' values
+        for t in range(1, 8):
+            want = np.mean([i[key] for i in infos[:t]])
+            assert infos[t - 1][f"{key}_mean"] == pytest.approx(want, rel=1e-12)
+    assert len({i["jain"] for i in infos}) > 1  # the periods differ: the last one is not the mean
     assert [s[1] for s in steps] == [i["utility"] for i in infos]  # reward: the period's utility per receiver
+    # evaluate's rows: jain_mean is the episode's mean (jain_end the last period's), jain_fairness their mean
+    par = make_parallel_env("cv2x/Traffic-v0", max_cycles=7)
+    obs, _ = par.reset(seed=4)
+    policy = make_policy("static", par)
+    policy.reset(4)
+    jains = []
+    while par.agents:
+        obs, _, _, _, inf = par.step({**{a: np.zeros(2, np.float32) for a in par.agents}, **policy.act(obs)})
+        jains.append(inf["vehicle_0"]["jain"])
+    summary, rows = ev.evaluate_rows("cv2x/Traffic-v0", "static", 0, 0, env_kwargs={"max_cycles": 7},
+                                     progress=False, seeds=[4])  # fmt: skip
+    assert rows[0]["jain_mean"] == pytest.approx(sum(jains) / 7, rel=1e-12) and rows[0]["jain_end"] == jains[-1]
+    assert summary["jain_fairness"] == rows[0]["jain_mean"]
 
 
 def test_seeding_same_trajectory_and_the_checker() -> None:
@@ -161,14 +178,53 @@ def test_ceiling_at_least_every_scripted_method_and_evaluate_scores(monkeypatch:
 
 
 def test_parallel_variant_every_vehicle_drives() -> None:
-    """``parallel_env(**TRAFFIC_DEFAULTS)``: the PettingZoo variant, every vehicle commands its own speed."""
-    from cv2x_marl.env import parallel_env
-    from cv2x_marl.env.options import TRAFFIC_DEFAULTS
+    """``cv2x/Traffic-v0`` in PettingZoo with ``movers=None``: every vehicle commands its own speed, each rewarded
+    with its own period's eq. 12 utility per target receiver (an independent numpy sum over the period's links)."""
+    import pettingzoo
 
-    env = parallel_env(**TRAFFIC_DEFAULTS, max_cycles=3)
+    from cv2x_marl.sim.metrics import CAUSE_CODE
+
+    env = pettingzoo.make("parallel", "cv2x/Traffic-v0", max_cycles=3, movers=None)
+    assert env.metadata["name"] == "cv2x_traffic_v0" and env.mover_mask.all()
     env.reset(seed=2)
     v0 = env.sim.state.speed_mps.copy()
     goals = np.linspace(-1.0, 1.0, env.n)
-    env.step({a: np.array([g, 0.0], np.float32) for a, g in zip(env.agents, goals, strict=True)})
+    _, rew, _, _, info = env.step({a: np.array([g, 0.0], np.float32) for a, g in zip(env.agents, goals, strict=True)})
     target = 0.5 * (goals.astype(np.float32).astype(np.float64) + 1.0) * LIMIT
     np.testing.assert_allclose(env.sim.state.speed_mps, np.clip(target, v0 - 0.34, v0 + 0.26), atol=1e-12)
+    tx, _, p, cause = env.sim.last_links
+    ok = cause != CAUSE_CODE["half_duplex"]
+    for i, a in enumerate(env.possible_agents):
+        mine = ok & (tx == i)
+        want = np.log(np.maximum(p[mine], env.p_min)).sum() / max(int(mine.sum()), 1)
+        assert rew[a] == info[a]["utility"] == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+def test_pettingzoo_id_api_seeding_and_the_gymnasium_task() -> None:
+    """The PettingZoo id passes PettingZoo's API and seeding tests (vehicle 0 driving, and every vehicle), and
+    with its default movers (vehicle 0) is the Gymnasium id's task: the same observations and rewards."""
+    import pettingzoo
+    from pettingzoo.test import api_test, parallel_api_test
+    from pettingzoo.test.seed_test import parallel_seed_test
+
+    from cv2x_marl import env as env_module
+    from cv2x_marl.env.mobility_env import TrafficParallelEnv
+
+    par = pettingzoo.make("parallel", "cv2x/Traffic-v0", max_cycles=5)
+    assert isinstance(par, TrafficParallelEnv) and np.flatnonzero(par.mover_mask).tolist() == [0] and par.drives
+    assert np.flatnonzero(make_parallel_env("cv2x/Traffic-v0", movers=None).mover_mask).size == par.n
+    gym_env = gym.make("cv2x/Traffic-v0", max_cycles=5)
+    obs, _ = par.reset(seed=8)
+    ob, _ = gym_env.reset(seed=8)
+    np.testing.assert_array_equal(obs["vehicle_0"], ob)
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents}  # the others' are ignored
+        obs, rew, _, _, _ = par.step(acts)
+        ob, r, *_ = gym_env.step(acts["vehicle_0"])
+        np.testing.assert_array_equal(obs["vehicle_0"], ob)
+        assert rew["vehicle_0"] == r
+    parallel_api_test(env_module.parallel_env_traffic(max_cycles=5), num_cycles=10)
+    parallel_api_test(env_module.parallel_env_traffic(max_cycles=5, movers=None), num_cycles=10)
+    parallel_seed_test(lambda: env_module.parallel_env_traffic(max_cycles=5, movers=None), num_cycles=8)
+    api_test(pettingzoo.make("aec", "cv2x/Traffic-v0", max_cycles=3), num_cycles=6)

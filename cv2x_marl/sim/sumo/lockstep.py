@@ -30,7 +30,7 @@ FloatArray = NDArray[np.float64]
 MAX_FILL_S = 3600.0
 
 # TraCI variable ids (traci.constants), fixed by the protocol
-_VAR_SPEED, _VAR_POSITION, _VAR_ANGLE = 0x40, 0x42, 0x43
+_VAR_SPEED, _VAR_POSITION, _VAR_ANGLE, _VAR_LANE_INDEX = 0x40, 0x42, 0x43, 0x52
 
 
 _ACTIVE: SumoLockstep | None = None
@@ -100,7 +100,7 @@ class SumoLockstep:
             self.fixed_ids = select_first(present, first_seen, self.n)
             self.slots = list(self.fixed_ids)
             for vid in self.fixed_ids:
-                self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE])
+                self._ls.vehicle.subscribe(vid, [_VAR_POSITION, _VAR_SPEED, _VAR_ANGLE, _VAR_LANE_INDEX])
             self.state = self._read()
         self.t0_s = self.time_s
 
@@ -173,6 +173,11 @@ class SumoLockstep:
         pos = np.array([r[_VAR_POSITION] for r in rows], dtype=np.float64)
         speed = np.array([r[_VAR_SPEED] for r in rows], dtype=np.float64)
         angle = np.array([r[_VAR_ANGLE] for r in rows], dtype=np.float64)
+        a = np.deg2rad(angle)
+        #: [N, 2] unit vector of each tracked vehicle's direction (SUMO's angle: defined at standstill too)
+        self.heading = np.stack([np.sin(a), np.cos(a)], axis=1)
+        #: [N] SUMO's lane index of each tracked vehicle (0: the rightmost lane of its edge)
+        self.lane_index = np.array([r[_VAR_LANE_INDEX] for r in rows], dtype=np.int64)
         return tracked_state(pos, speed, angle, self.time_s)
 
     def advance(self) -> TrackedState:
@@ -192,7 +197,13 @@ class SumoLockstep:
             self.state = moved_state(self.state, self._read())
         return self.state
 
-    def command(self, target_speed_mps: FloatArray, lane_change: NDArray[np.int64], duration_s: float) -> None:
+    def command(
+        self,
+        target_speed_mps: FloatArray,
+        lane_change: NDArray[np.int64],
+        duration_s: float,
+        up_to_limit: bool = False,
+    ) -> None:
         """Commands for the next step, honoured by SUMO within its own limits (the env's
         ``traffic_action="speed"``).
 
@@ -204,6 +215,9 @@ class SumoLockstep:
             lane_change: [N] -1 (one lane to the right), 0 (stay), +1 (one lane to the left)
                 (``vehicle.changeLaneRelative`` for ``duration_s``; ignored where no such lane exists).
             duration_s: how long a lane-change request holds (s).
+            up_to_limit: first set each vehicle given a target >= 0 to ``speedFactor`` 1, so that a target up to
+                its lane's speed limit is honoured (SUMO caps a vehicle at the limit times its speedFactor, the
+                scenario's draw of its desired speed; ``cv2x/Traffic-v0``); False: that cap stays.
         """
         if self.closed:
             raise RuntimeError("this SUMO run is closed; reset() the simulator")
@@ -216,6 +230,8 @@ class SumoLockstep:
         veh = self._ls.vehicle
         for vid, v, dl in zip(self.fixed_ids, target.tolist(), lanes.tolist(), strict=True):  # libsumo: per vehicle
             if v == v:  # not NaN
+                if up_to_limit and v >= 0:
+                    veh.setSpeedFactor(vid, 1.0)
                 veh.setSpeed(vid, -1.0 if v < 0 else v)  # -1: SUMO's own driver again
             if dl != 0:
                 veh.changeLaneRelative(vid, int(dl), float(duration_s))
