@@ -240,3 +240,16 @@ def test_a_variant_of_the_traffic_task_with_its_seed_lists() -> None:
     assert ev.parse_seeds("train", "cv2x/Traffic-v1") == tasks.TRAIN_SEEDS
     with pytest.raises(ValueError, match="cannot run on task traffic \\(cv2x/Traffic-v1\\)"):
         task.check_policy("planner")
+
+
+def test_parallel_variant_passes_pettingzoos_api_test() -> None:
+    """``parallel_env(**TRAFFIC_V1_DEFAULTS)``: every vehicle drives and observes version 4."""
+    from pettingzoo.test import parallel_api_test
+
+    from cv2x_marl.env import parallel_env
+    from cv2x_marl.env.options import TRAFFIC_V1_DEFAULTS
+
+    env = parallel_env(**TRAFFIC_V1_DEFAULTS, overrides=OVERRIDES, max_cycles=3)
+    parallel_api_test(env, num_cycles=3)
+    obs, _ = env.reset(seed=1)
+    assert env.layout.version == 4 and all(o.shape == (env.layout.size,) for o in obs.values())
