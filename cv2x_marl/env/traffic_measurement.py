@@ -31,10 +31,12 @@ Randomness: the episode's ``measurement`` stream (:func:`cv2x_marl.rng.env_strea
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env.measurement import Measurements, scaled_rsrp
@@ -187,18 +189,72 @@ def start_measurements(env: TrafficEnvState, episode_seed: int) -> TrafficMeasur
     )
 
 
-def neighbour_order(dist2_m2: FloatArray, rows: IntArray, k: int) -> IntArray:
-    """[A, K] the K nearest other vehicles of each agent of ``rows``, nearest first, ties in index order: the
-    order of the v0 block (:func:`~cv2x_marl.env.observation.build_observations`: a stable sort of the
-    distances, the agent itself last)."""
-    dist = np.sqrt(dist2_m2[rows])
-    dist[np.arange(rows.shape[0]), rows] = np.inf
-    return np.argsort(dist, axis=1, kind="stable")[:, :k]
+@njit(cache=True)
+def _fill_kernel(
+    out: NDArray[np.float32],
+    dist2_m2: FloatArray,
+    rsrp_scaled: FloatArray,
+    age: IntArray,
+    heard: NDArray[np.bool_],
+    sci_resource: IntArray,
+    sci_release: NDArray[np.bool_],
+    resource: IntArray,
+    counter_share: FloatArray,
+    releasing: NDArray[np.bool_],
+    u_now: FloatArray,
+    u_prev: FloatArray,
+    rows: IntArray,
+    k: int,
+    offset: int,
+    own_offset: int,
+    window: int,
+    n_sub: int,
+    rri: int,
+    obs_clip: float,
+) -> None:
+    """:func:`fill_observations`' entries, computed in float64, clipped, stored as float32; the neighbours in the
+    v0 block's order (a stable sort of the distances, the agent itself last: ``_observation_kernel``'s)."""
+    n = dist2_m2.shape[0]
+    dist_i = np.empty(n)
+    vals = np.empty(FEATURES_V4)
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        for j in range(n):
+            dist_i[j] = math.sqrt(dist2_m2[i, j])
+        dist_i[i] = np.inf
+        order = np.argsort(dist_i, kind="mergesort")
+        own = resource[i]
+        for kk in range(k):
+            j = order[kk]
+            res = sci_resource[j, i]
+            known = res >= 0
+            vals[0] = rsrp_scaled[j, i]
+            vals[1] = age[j, i] / window
+            vals[2] = 1.0 if heard[j, i] else 0.0
+            vals[3] = (res // n_sub) / rri if known else 0.0
+            vals[4] = (res % n_sub) / n_sub if known else 0.0
+            vals[5] = 1.0 if known and sci_release[j, i] else 0.0
+            vals[6] = 1.0 if known and res // n_sub == own // n_sub else 0.0
+            vals[7] = 1.0 if known and res == own else 0.0
+            base = offset + kk * FEATURES_V4
+            for f in range(FEATURES_V4):
+                out[r, base + f] = min(max(vals[f], -obs_clip), obs_clip)
+        mine = (
+            (own // n_sub) / rri,
+            (own % n_sub) / n_sub,
+            counter_share[i],
+            1.0 if releasing[i] else 0.0,
+            u_now[i],
+            10.0 * (u_now[i] - u_prev[i]),
+        )
+        for f in range(OWN_V4):
+            out[r, own_offset + f] = min(max(mine[f], -obs_clip), obs_clip)
 
 
 def fill_observations(env: TrafficEnvState, obs: NDArray[np.float32], rows: IntArray | None = None) -> None:
     """Write observation version 4's measured and own entries of agents ``rows`` (all: None) into ``obs``
-    [A, size] (the v0 block and the driving entries are written by the env).
+    [A, size] in place, one compiled pass (the v0 block and the driving entries are written by the env;
+    ``tests/env/test_traffic_measured.py`` checks every entry against an independent numpy replay).
 
     Args:
         env: a traffic-mode env with observation version 4, after its links and measurements of this step.
@@ -209,43 +265,14 @@ def fill_observations(env: TrafficEnvState, obs: NDArray[np.float32], rows: IntA
     if layout.version != 4:
         raise ValueError("fill_observations writes observation version 4")
     assert env._geometry is not None
-    rows = np.arange(env.n, dtype=np.int64) if rows is None else rows
-    cfg, tm = env.config, env.traffic_measure
-    n_sub, rri = cfg.sps.n_subchannels, cfg.traffic.rri_ms
-    order = neighbour_order(env._geometry.dist2_m2, rows, layout.n_neighbours)  # [A, K]
-    col = rows[:, None]
-    m, sci = tm.rsrp, tm.sci
-    res = sci.resource[order, col]  # [A, K]
-    known = res >= 0
-    own = env.resource[rows]  # [A] the own next resource
-    slot, sub = np.divmod(res, n_sub)
-    block = np.stack(
-        (
-            scaled_rsrp(m.rsrp_dbm)[order, col],
-            m.age[order, col] / m.window,
-            np.isfinite(m.rsrp_dbm)[order, col],
-            np.where(known, slot / rri, 0.0),
-            np.where(known, sub / n_sub, 0.0),
-            sci.release[order, col] & known,
-            known & (slot == (own // n_sub)[:, None]),
-            known & (res == own[:, None]),
-        ),
-        axis=-1,
-    )  # [A, K, FEATURES_V4]
-    k0, clip = layout.v0_size, layout.obs_clip
-    obs[:, k0 : k0 + layout.n_neighbours * FEATURES_V4] = np.clip(block, -clip, clip).reshape(rows.shape[0], -1)
+    rows = np.arange(env.n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    cfg, m, sci = env.config, env.traffic_measure.rsrp, env.traffic_measure.sci
     sched = env.sim.scheduler
-    u_now, u_prev = env._u_now[rows], env._u_prev[rows]
-    own_block = np.stack(
-        (
-            (own // n_sub) / rri,
-            (own % n_sub) / n_sub,
-            sched.counter[rows] / counter_range(cfg.sps, rri)[1],
-            sched.releasing[rows],
-            u_now,
-            10.0 * (u_now - u_prev),
-        ),
-        axis=1,
-    )  # [A, OWN_V4]
-    o0 = layout.own_v1_offset
-    obs[:, o0 : o0 + OWN_V4] = np.clip(own_block, -clip, clip)
+    _fill_kernel(
+        obs, env._geometry.dist2_m2, scaled_rsrp(m.rsrp_dbm), m.age, np.isfinite(m.rsrp_dbm), sci.resource,
+        sci.release, np.ascontiguousarray(env.resource, dtype=np.int64),
+        sched.counter / counter_range(cfg.sps, cfg.traffic.rri_ms)[1], np.ascontiguousarray(sched.releasing),
+        np.ascontiguousarray(env._u_now, dtype=np.float64), np.ascontiguousarray(env._u_prev, dtype=np.float64),
+        rows, layout.n_neighbours, layout.v0_size, layout.own_v1_offset, m.window, cfg.sps.n_subchannels,
+        cfg.traffic.rri_ms, layout.obs_clip,
+    )  # fmt: skip
