@@ -20,6 +20,7 @@ from pettingzoo import ParallelEnv
 from cv2x_marl.config import ConfigError, ScenarioConfig
 from cv2x_marl.env import starts
 from cv2x_marl.env import step as step_core
+from cv2x_marl.env import traffic_measurement as tmeas
 from cv2x_marl.env.measurement import Measurements, scaled_rsrp
 from cv2x_marl.env.mover_links import MoverLinksStep
 from cv2x_marl.env.observation import (
@@ -104,7 +105,7 @@ class MobilityEnv(ParallelEnv):
         roi: keep vehicles inside the region of interest (the road box).
         truth_los: LOS state of moved links (``snapshot``, ``geometry``, ``always``).
         render_mode: ``rgb_array``, ``human`` or None.
-        observation: observation version (0, 1 or 2, see :mod:`cv2x_marl.env.observation`).
+        observation: observation version (0 .. 4, see :mod:`cv2x_marl.env.observation`; 4: ``cv2x/Traffic-v1``).
         privileged: versions 1 and 2 only: also observe the true success of every neighbour link (for
             upper-bound studies; a vehicle cannot know it).
         reward_form: ``utility`` (the reward is the utility after the step) or ``improvement``
@@ -305,6 +306,7 @@ class MobilityEnv(ParallelEnv):
         cached = starts.cached_start(self, episode_seed) if keep else None
         if cached is None:
             self.sim = Simulator(self.config)
+            self.sim.keep_period_geometry = self.layout.version == 4  # Traffic-v1 measures each period's powers
             snap = self.sim.reset(self.seed_used)
             if self.mode == "snapshot":
                 field = None
@@ -342,6 +344,8 @@ class MobilityEnv(ParallelEnv):
             o = self.options
             rng = env_stream(episode_seed, "measurement")
             self.measure = Measurements.start(self._rx_dbm, self.link_p, o.sensing_window, o.rsrp_error_db, rng)
+        if self.layout.version == 4:  # Traffic-v1: RSRP and SCI reports from the simulator's periods
+            self.traffic_measure = tmeas.start_measurements(self, episode_seed)
         if keep and cached is None:
             starts.store_start(self, episode_seed)
         obs = self._observations()
@@ -387,6 +391,8 @@ class MobilityEnv(ParallelEnv):
         self._jain_sum += self.jain
         if self.layout.version == 3:  # one more period of sensing at the new positions
             self.measure.update(self._rx_dbm, self.link_p)
+        elif self.layout.version == 4:
+            self.traffic_measure.update(self.sim)
         rewards_arr = step_core.step_rewards(self._rewards(self.utility), self._base_prev, self._improvement)
         if self.layout.version >= 1:
             step_core.own_state_updates(
@@ -627,6 +633,8 @@ class MobilityEnv(ParallelEnv):
             self._fill_drive(obs)
         if self.layout.version == 3:
             self._fill_v3(obs, np.arange(self.n, dtype=np.int64))
+        elif self.layout.version == 4:
+            tmeas.fill_observations(self, obs)
         elif self.layout.version >= 1:
             step_core.own_v1_block(
                 obs, self.layout.own_v1_offset, self.layout.obs_clip, self.layout.scale_m, self._reach_m(),

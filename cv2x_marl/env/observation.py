@@ -53,6 +53,26 @@ entries (:data:`OWN_DRIVE_NAMES`) close the vector: the own speed / the speed li
 unit vector along the own lane), the lane index / max(lanes per direction - 1, 1), 1 if a lane exists to
 the left / to the right, and the time left (steps left / the horizon in force).
 
+Version 4 (``cv2x/Traffic-v1``: traffic mode with the driving entries; :mod:`cv2x_marl.env.traffic_measurement`)
+is what a Mode 4 vehicle has after its sensing window on the road: after the v0 block (unchanged) come
+``F4 = 8`` values per neighbour k (the v0 block's k-th):
+
+    [7K + 5 + 8k + 0]       RSRP of the link from j measured at i over the packets i actually decoded in
+                            the sensing window (the simulator's outcomes; fading and report error of
+                            :mod:`cv2x_marl.env.measurement`), scaled ``(rsrp_dbm + 100) / 20``; 0: never heard
+    [7K + 5 + 8k + 1]       age of that measurement: periods since j's last decoded packet / window
+    [7K + 5 + 8k + 2]       1 if i has heard j (a report exists)
+    [7K + 5 + 8k + 3, 4]    j's subframe / RRI and subchannel / n_subchannels from its last decoded SCI
+                            (0 when never heard; stale with the age)
+    [7K + 5 + 8k + 5]       1 if that SCI announced a reselection (no reservation: ``sps.reservation_signalling
+                            =standard``; always 0 with ``always``)
+    [7K + 5 + 8k + 6]       1 if that subframe is i's next one (half duplex: neither hears the other)
+    [7K + 5 + 8k + 7]       1 if that resource is i's next one (co-channel: the packets collide)
+
+then ``OWN_V4 = 6`` own values (:data:`OWN_V4_NAMES`): the own next resource (subframe / RRI, subchannel /
+n_subchannels), the reselection counter / its largest value, 1 if the own next SCI announces a reselection,
+the utility per target receiver and its change over the last step x 10; the driving entries close the vector.
+
 Values are clipped to ``[-obs_clip, obs_clip]`` (the Box bounds).
 """
 
@@ -90,7 +110,13 @@ FEATURES_V3 = 10
 #: the own entries of observation version 3, in order
 OWN_V3_NAMES = ("utility", "utility_change_x10", "drift_x", "drift_y", "time_left", "reach")
 OWN_V3 = len(OWN_V3_NAMES)
-VERSIONS = (0, 1, 2, 3)
+#: measured values per neighbour of observation version 4 (module docstring)
+FEATURES_V4_NAMES = ("rsrp", "age", "heard", "slot", "subchannel", "release", "same_subframe", "same_resource")
+FEATURES_V4 = len(FEATURES_V4_NAMES)
+#: the own entries of observation version 4, in order (the driving entries follow)
+OWN_V4_NAMES = ("slot", "subchannel", "counter", "release", "utility", "utility_change_x10")
+OWN_V4 = len(OWN_V4_NAMES)
+VERSIONS = (0, 1, 2, 3, 4)
 #: the driving entries closing the observation with ``drive`` (module docstring)
 OWN_DRIVE_NAMES = ("speed", "heading_x", "heading_y", "lane", "lane_left", "lane_right", "time_left")
 OWN_DRIVE = len(OWN_DRIVE_NAMES)
@@ -115,6 +141,8 @@ class ObservationLayout:
         :data:`FEATURES_V3` measured values (v3)."""
         if self.version == 3:
             return FEATURES_V3
+        if self.version == 4:
+            return FEATURES_V4
         return 0 if self.version == 0 else 1 + int(self.privileged)
 
     @property
@@ -133,7 +161,7 @@ class ObservationLayout:
 
     @property
     def size(self) -> int:
-        own = {0: 0, 3: OWN_V3}.get(self.version, OWN_V1)
+        own = {0: 0, 3: OWN_V3, 4: OWN_V4}.get(self.version, OWN_V1)
         return self.own_v1_offset + own + (OWN_DRIVE if self.drive else 0)
 
     @property
@@ -149,11 +177,18 @@ class ObservationLayout:
         return obs[..., k : k + OWN_DRIVE]
 
     def measured(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
-        """[..., K, FEATURES_V3] view of the measured per-neighbour block (version 3)."""
-        if self.version != 3:
-            raise ValueError("measured neighbour entries are part of observation version 3")
-        k0, k = self.v0_size, self.n_neighbours
-        return obs[..., k0 : k0 + k * FEATURES_V3].reshape(*obs.shape[:-1], k, FEATURES_V3)
+        """[..., K, F] view of the measured per-neighbour block (version 3: ``F = FEATURES_V3``; version 4:
+        ``FEATURES_V4``)."""
+        if self.version not in (3, 4):
+            raise ValueError("measured neighbour entries are part of observation versions 3 and 4")
+        k0, k, f = self.v0_size, self.n_neighbours, self.per_neighbour_extra
+        return obs[..., k0 : k0 + k * f].reshape(*obs.shape[:-1], k, f)
+
+    def own_v4(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
+        """[..., OWN_V4] the own entries of version 4 (:data:`OWN_V4_NAMES`)."""
+        if self.version != 4:
+            raise ValueError("OWN_V4 entries are part of observation version 4")
+        return obs[..., self.own_v1_offset : self.own_v1_offset + OWN_V4]
 
     def own_v3(self, obs: NDArray[np.floating]) -> NDArray[np.floating]:
         """[..., OWN_V3] the own entries of version 3 (:data:`OWN_V3_NAMES`)."""

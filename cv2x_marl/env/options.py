@@ -78,8 +78,11 @@ TRAFFIC_DEFAULTS: dict[str, Any] = {
     "drive_observation": True,
     "episode_metrics": True,
 }
+#: ``cv2x/Traffic-v1``: Traffic-v0 with observation version 4, what the mover measured on the road (RSRP over its
+#: sensing window, the SCIs it decoded, its own SPS state; :mod:`cv2x_marl.env.traffic_measurement`)
+TRAFFIC_V1_DEFAULTS: dict[str, Any] = {**TRAFFIC_DEFAULTS, "observation": 4}
 #: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``;
-#: ``traffic-v0``: ``cv2x/Traffic-v0``)
+#: ``traffic-v0``, ``traffic-v1``: ``cv2x/Traffic-v0``, ``cv2x/Traffic-v1``)
 VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
     "v0": {},
     "v1": V1_DEFAULTS,
@@ -87,6 +90,7 @@ VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
     "v3": V3_DEFAULTS,
     "cooperative-v0": COOPERATIVE_DEFAULTS,
     "traffic-v0": TRAFFIC_DEFAULTS,
+    "traffic-v1": TRAFFIC_V1_DEFAULTS,
 }
 #: the bound of a commanded speed increase (m/s^2): SUMO's default ``accel`` of a passenger car (2.6 m/s^2,
 #: sumo.dlr.de "Vehicle Type Parameter Defaults"), within the 2-3 m/s^2 of comfortable acceleration
@@ -311,7 +315,7 @@ class EnvOptions:
     )
     sensing_window: int = _option(
         SENSING_WINDOW,
-        "observation version 3: the periods (100 ms each) over which a vehicle averages each neighbour's RSRP "
+        "observation versions 3 and 4: the periods (100 ms each) over which a vehicle averages each neighbour's RSRP "
         "(the 1000 ms sensing window of TS 36.213 clause 14.1.1.6)",
         "periods",
         lo=1,
@@ -319,8 +323,8 @@ class EnvOptions:
     )
     rsrp_error_db: float = _option(
         RSRP_ERROR_DB,
-        "observation version 3: standard deviation of the Gaussian error of each RSRP report (the +-6 dB absolute "
-        "RSRP accuracy of TS 36.133 clause 9.1.2.1 read as a 95 % bound: 6 / 2)",
+        "observation versions 3 and 4: standard deviation of the Gaussian error of each RSRP report (the +-6 dB "
+        "absolute RSRP accuracy of TS 36.133 clause 9.1.2.1 read as a 95 % bound: 6 / 2)",
         "dB",
         lo=0.0,
     )
@@ -414,7 +418,13 @@ class EnvOptions:
                 " | ".join(ACTION_MODES) + " (plan_residual: observation 1 or 2, snapshot mode)",
             )
         if self.observation == 3 and self.mode != "snapshot":
-            refuse("observation", self.observation, "0 | 1 | 2 in traffic mode (3: snapshot mode)")
+            refuse("observation", self.observation, "0 | 1 | 2 | 4 in traffic mode (3: snapshot mode)")
+        if self.observation == 4 and not self.drive_observation:
+            refuse(
+                "observation",
+                self.observation,
+                "0 | 1 | 2 | 3 (4: traffic mode with traffic_action speed and drive_observation true, cv2x/Traffic-v1)",
+            )
         if self.shadow_field and self.mode != "snapshot":
             refuse("shadow_field", self.shadow_field, "false unless mode is snapshot")
         if self.settle_steps >= self.max_cycles:
@@ -438,7 +448,7 @@ class EnvOptions:
         ``scene_diagonal_m`` m, link model, path loss, mobility)."""
         if cfg.link.model == "rayleigh":
             refuse("config.link.model", cfg.link.model, "per_table | threshold")
-        if self.observation >= 2 and (cfg.channel.pathloss != "winner_b1" or self.truth_los == "geometry"):
+        if self.observation in (2, 3) and (cfg.channel.pathloss != "winner_b1" or self.truth_los == "geometry"):
             refuse(
                 "observation",
                 self.observation,

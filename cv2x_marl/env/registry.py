@@ -11,6 +11,8 @@ Two families of four versions each, and the cooperative task (the defaults of ea
                           (:class:`~cv2x_marl.env.single.TrafficEnv`); also PettingZoo
                           (:class:`~cv2x_marl.env.mobility_env.TrafficParallelEnv`: every vehicle an agent,
                           vehicle 0 drives, ``movers=None``: every vehicle drives)
+    cv2x/Traffic-v1       Traffic-v0 observing what the mover measured on the road (observation version 4:
+                          RSRP, SCI resources, own SPS state; :class:`~cv2x_marl.env.single.TrafficEnvV1`)
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
@@ -48,8 +50,9 @@ MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
 SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
 #: the cooperative task (PettingZoo; every vehicle moves, team reward)
 COOPERATIVE_IDS = ("cv2x/Cooperative-v0",)
-#: the traffic task (Gymnasium and PettingZoo; vehicle 0 drives with speed and lane commands)
-TRAFFIC_IDS = ("cv2x/Traffic-v0",)
+#: the traffic task (Gymnasium and PettingZoo; vehicle 0 drives with speed and lane commands), and its
+#: variant observing what the mover measured
+TRAFFIC_IDS = ("cv2x/Traffic-v0", "cv2x/Traffic-v1")
 #: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
 ENV_IDS = (
     *(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair),
@@ -66,6 +69,8 @@ _GYM_CLASSES = {
     "v2": ("SingleMoverEnvV2", "SingleMoverVectorEnvV2"),
     "v3": ("SingleMoverEnvV3", "SingleMoverVectorEnvV3"),
 }
+#: the Gymnasium classes of the traffic ids (in :mod:`cv2x_marl.env.single`)
+_TRAFFIC_CLASSES = {"cv2x/Traffic-v0": "TrafficEnv", "cv2x/Traffic-v1": "TrafficEnvV1"}
 #: PettingZoo ids -> the suffix of their factories in :mod:`cv2x_marl.env` (``parallel_env{suffix}``, ``env{suffix}``)
 _PETTINGZOO_SUFFIX = {
     **{i: ("" if v == "v0" else f"_{v}") for v, i in zip(VERSIONS, MOBILITY_IDS, strict=True)},
@@ -76,7 +81,8 @@ _PETTINGZOO_SUFFIX = {
 
 def env_version(env_id: str) -> str:
     """The key of a registered id's defaults in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (``v0`` ..
-    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``, ``traffic-v0`` for ``cv2x/Traffic-v0``); unknown
+    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``, ``traffic-v0`` / ``traffic-v1`` for ``cv2x/Traffic-v0`` /
+    ``-v1``); unknown
     ids are refused with the list."""
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
@@ -213,7 +219,7 @@ def _register_gymnasium() -> None:
             )
     for env_id in TRAFFIC_IDS:
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point="cv2x_marl.env.single:TrafficEnv")
+            gymnasium.register(id=env_id, entry_point=f"cv2x_marl.env.single:{_TRAFFIC_CLASSES[env_id]}")
 
 
 def _register_pettingzoo() -> None:

@@ -138,3 +138,14 @@ class TrafficEnv(SingleMoverEnv):
 
     defaults = "traffic-v0"
     label = "Traffic-v0"
+
+
+class TrafficEnvV1(TrafficEnv):
+    """``cv2x/Traffic-v1``: :class:`TrafficEnv` (the same driving, SPS periods, reward and infos) observing what
+    the mover measured on the road, observation version 4 (:data:`~cv2x_marl.env.options.TRAFFIC_V1_DEFAULTS`;
+    :mod:`cv2x_marl.env.traffic_measurement`): per neighbour the RSRP over its sensing window of the packets it
+    decoded, the measurement's age, the resource and reselection announcement of the last SCI it decoded; its
+    own resource and reselection counter; the utility and its change; the driving entries (``docs/env.md``)."""
+
+    defaults = "traffic-v1"
+    label = "Traffic-v1"

@@ -5,6 +5,7 @@ refuses.
     singlemover   cv2x/SingleMover-v3   one mover (Gymnasium), plan-free observation, shadowing that follows it
     cooperative   cv2x/Cooperative-v0   every vehicle moves (PettingZoo), reward = the team objective
     traffic       cv2x/Traffic-v0       vehicles drive (Gymnasium), the mover commands its speed and lane
+                  (variant cv2x/Traffic-v1: the same task observing what the mover measured, :data:`VARIANTS`)
 
 The episode seeds are package constants, drawn once at import from named ``SeedSequence`` s
 (:data:`PROTOCOL_ENTROPY`, the task's name, the list's kind), so they are the same on every machine
@@ -20,7 +21,7 @@ This module imports numpy and the registry only (no env code).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -150,6 +151,13 @@ TASKS: Mapping[str, Task] = MappingProxyType(
 )
 
 
+#: env ids that are variants of a task (the same episodes, dynamics, reward, methods and refusals; another
+#: observation) without being tasks of the benchmark themselves: ``evaluate --seeds heldout | train`` runs the
+#: task's lists on them, so their scores compare with the task's episode by episode; the lists stay the task's
+#: own (no new list, nothing else changes)
+VARIANTS: Mapping[str, str] = MappingProxyType({"cv2x/Traffic-v1": "traffic"})
+
+
 def get_task(name: str, tasks: Mapping[str, Task] | None = None) -> Task:
     """The task ``name`` of ``tasks`` (default :data:`TASKS`); a pending or unknown name is refused."""
     tasks = TASKS if tasks is None else tasks
@@ -161,8 +169,12 @@ def get_task(name: str, tasks: Mapping[str, Task] | None = None) -> Task:
 
 
 def task_of_env(env_id: str, tasks: Mapping[str, Task] | None = None) -> Task | None:
-    """The task whose env id is ``env_id`` (None: no task's)."""
-    for task in (TASKS if tasks is None else tasks).values():
+    """The task whose env id is ``env_id`` (None: no task's); a :data:`VARIANTS` id gets its task with
+    ``env_id`` in place of the task's own."""
+    table = TASKS if tasks is None else tasks
+    for task in table.values():
         if task.env_id == env_id:
             return task
+    if env_id in VARIANTS and VARIANTS[env_id] in table:
+        return replace(table[VARIANTS[env_id]], env_id=env_id)
     return None

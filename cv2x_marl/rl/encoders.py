@@ -2,11 +2,12 @@
 
 An observation (:mod:`cv2x_marl.env.observation`) is a flat vector: per neighbour k (nearest first) a block of
 features, spread over up to two places (the version-0 block ``[7k, 7k + 7)``, then version 3's measured block
-``[7K + 5 + 10k, ... + 10)`` or versions 1-2's model / true success ``[7K + 5 + k]``, ``[8K + 5 + k]``), and the
-own entries (the version-0 own block, the version's own block, the driving entries). :func:`split_indices`
-derives from an :class:`~cv2x_marl.env.observation.ObservationLayout` (through its own accessors, applied to
-the index vector ``0 .. size - 1``) the index table ``[K, F]`` of each neighbour's features and the indices
-``[O]`` of every other entry (the own entries), so the encoder reads exactly what the env writes.
+``[7K + 5 + 10k, ... + 10)``, version 4's ``[7K + 5 + 8k, ... + 8)`` or versions 1-2's model / true success
+``[7K + 5 + k]``, ``[8K + 5 + k]``), and the own entries (the version-0 own block, the version's own block, the
+driving entries). :func:`split_indices` derives from an :class:`~cv2x_marl.env.observation.ObservationLayout`
+(through its own accessors, applied to the index vector ``0 .. size - 1``) the index table ``[K, F]`` of each
+neighbour's features and the indices ``[O]`` of every other entry (the own entries), so the encoder reads exactly
+what the env writes.
 
 :class:`NeighbourEncoder` (an SB3 ``BaseFeaturesExtractor``) gathers the rows ``x_k`` ([B, K, F]) and the own
 entries ``o`` ([B, O]), encodes each neighbour with one shared MLP ``h_k = phi(x_k)`` and the own entries with
@@ -73,14 +74,14 @@ def split_indices(layout: ObservationLayout | dict[str, Any]) -> tuple[NDArray[n
 
     Returns:
         ``(rows, own)``: ``rows`` [K, F] the index of feature f of neighbour k (the version-0 block's 7
-        features, then version 3's 10 measured ones, or versions 1-2's model (and true) success);
+        features, then version 3's 10 (version 4's 8) measured ones, or versions 1-2's model (and true) success);
         ``own`` [O] every other index, in order (``K F + O`` = the observation's size).
     """
     lay = _layout_of(layout) if isinstance(layout, dict) else layout
     idx = np.arange(lay.size, dtype=np.float64)[None, :]  # [1, size]: each accessor returns the indices it reads
     parts = [lay.neighbours(idx)[0]]  # [K, 7]
-    if lay.version == 3:
-        parts.append(lay.measured(idx)[0])  # [K, 10]
+    if lay.version in (3, 4):
+        parts.append(lay.measured(idx)[0])  # [K, 10] (version 4: [K, 8])
     elif lay.version in (1, 2):
         parts.append(lay.model_success(idx)[0][:, None])
         if lay.privileged:

@@ -147,6 +147,13 @@ class Simulator:
         #: the pairs in range, through a Verlet list (link.max_range_m set; PairList.skin_m)
         self.pair_list = PairList(config, self.road, self.n)
         self._source: MobilitySource | None = None
+        #: keep the geometry of the period just ended (:attr:`last_geometry`) for the caller to read (the env's
+        #: ``cv2x/Traffic-v1`` measures each period's received powers); off by default: it holds a second
+        #: period's pair arrays in memory
+        self.keep_period_geometry = False
+        #: with :attr:`keep_period_geometry`: the pair geometry and received powers of the last period that ended
+        #: (the period :attr:`last_links` describes), None before the first one
+        self.last_geometry: Geometry | None = None
         if config.vehicles.mobility != "model":  # SUMO installed, files there: refuse now, not at reset
             from cv2x_marl.sim import sumo
 
@@ -188,6 +195,7 @@ class Simulator:
         self.subframe = 0
         self._geometry: Geometry | None = None
         self.offsets_m = np.zeros((self.n, 2))
+        self.last_geometry = None
         #: speed and lane commands applied at each period end (:meth:`set_drive`; None: none, the lane model as it is)
         self._drive: tuple[FloatArray, IntArray, float, float] | None = None
         #: (tx, rx, p_success, cause) [L] of the last simulated part of a period (the env's traffic mode reads
@@ -514,4 +522,5 @@ class Simulator:
                 dt_s, limit = self.rri / 1000.0, self.config.vehicles.speed_max_mps
                 self.state = mobility.drive(self.road, self.state, target, lanes, accel, decel, dt_s, limit)
             self.state = mobility.advance(self.road, self.config.road, self.state, self.rri / 1000.0, self.rng.mobility)
+        self.last_geometry = self._geometry if self.keep_period_geometry else None
         self._geometry = None

@@ -34,7 +34,7 @@ def test_version_defaults() -> None:
     assert (v1.observation, v1.reward_form, v1.normalise_reward) == (1, "improvement", True)
     assert EnvOptions.from_mapping({"reward_form": "utility"}, "v2").reward_form == "utility"
     assert EnvOptions.from_mapping({}, "v2").observation == 2
-    assert set(VERSION_DEFAULTS) == {"v0", "v1", "v2", "v3", "cooperative-v0", "traffic-v0"}
+    assert set(VERSION_DEFAULTS) == {"v0", "v1", "v2", "v3", "cooperative-v0", "traffic-v0", "traffic-v1"}
     v3 = EnvOptions.from_mapping({}, "v3")
     assert (v3.observation, v3.shadow_field, v3.reward_form, v3.normalise_reward) == (3, True, "improvement", True)
     coop = EnvOptions.from_mapping({}, "cooperative-v0")

@@ -105,6 +105,12 @@ def test_traffic_cached_and_pooled_starts_are_bit_identical_to_fresh_ones() -> N
     for _ in range(4):
         vec.step(np.zeros((2, 2), np.float32))
     assert {e.unwrapped.par.seed_used for e in vec.envs} <= set(TRAIN_SEEDS[:2])
+    # Traffic-v1 (its measurements start from the kept simulator too): cached == fresh
+    starts.START_CACHE.clear()
+    fresh_v1 = gym.make("cv2x/Traffic-v1", **kw)
+    cached_v1 = gym.make("cv2x/Traffic-v1", reset_cache=1, **kw)
+    for seed in (3, 3):
+        assert _same(_traffic_episode(fresh_v1, seed), _traffic_episode(cached_v1, seed))
     import pettingzoo
 
     par = pettingzoo.make("parallel", "cv2x/Traffic-v0", start_pool=2, movers=None, max_cycles=2)

@@ -9,10 +9,12 @@ from gymnasium import spaces
 from cv2x_marl.env.observation import (
     FEATURES,
     FEATURES_V3,
+    FEATURES_V4,
     OWN,
     OWN_DRIVE,
     OWN_V1,
     OWN_V3,
+    OWN_V4,
     ObservationLayout,
 )
 from cv2x_marl.policies.ppo import PpoPolicy
@@ -40,6 +42,9 @@ def _hand_built(version: int, k: int, drive: bool, privileged: bool = False) -> 
     if version == 3:
         extra, own_v = rng.normal(size=(k, FEATURES_V3)), rng.normal(size=OWN_V3)
         flat_extra = extra.ravel()  # neighbour-major: [10k + f]
+    elif version == 4:
+        extra, own_v = rng.normal(size=(k, FEATURES_V4)), rng.normal(size=OWN_V4)
+        flat_extra = extra.ravel()  # neighbour-major: [8k + f]
     elif version in (1, 2):
         extra = rng.normal(size=(k, 1 + int(privileged)))
         flat_extra = extra.T.ravel()  # feature-major: model P of every neighbour, then the true P
@@ -53,7 +58,8 @@ def _hand_built(version: int, k: int, drive: bool, privileged: bool = False) -> 
 
 
 @pytest.mark.parametrize(
-    ("version", "drive", "privileged"), [(3, False, False), (0, True, False), (0, False, False), (1, False, True)]
+    ("version", "drive", "privileged"),
+    [(3, False, False), (0, True, False), (0, False, False), (1, False, True), (4, True, False)],
 )
 def test_split_equals_independent_slicing_of_a_hand_built_observation(
     version: int, drive: bool, privileged: bool
@@ -77,10 +83,14 @@ def test_traffic_and_v3_layouts_of_the_envs() -> None:
     assert rows.shape == (20, FEATURES + FEATURES_V3)
     assert rows[1].tolist() == [*range(7, 14), *range(155, 165)]
     assert own.tolist() == [*range(140, 145), *range(345, 351)]
+    rows, own = split_indices(_layout(20, 4, drive=True))  # Traffic-v1: 145 + 8 x 20 + 6 + 7 = 318
+    assert rows.shape == (20, FEATURES + FEATURES_V4)
+    assert rows[1].tolist() == [*range(7, 14), *range(153, 161)]
+    assert own.tolist() == [*range(140, 145), *range(305, 318)]
 
 
 @pytest.mark.parametrize("pool", ["deepsets", "attention"])
-@pytest.mark.parametrize(("version", "drive"), [(3, False), (0, True)])
+@pytest.mark.parametrize(("version", "drive"), [(3, False), (0, True), (4, True)])
 def test_features_are_invariant_to_the_order_of_the_neighbours(pool: str, version: int, drive: bool) -> None:
     layout = _layout(6, version, drive)
     enc = _encoder(layout, pool)
