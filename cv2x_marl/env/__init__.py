@@ -10,9 +10,10 @@
     parallel_env_cooperative / env_cooperative   ``cv2x/Cooperative-v0`` (every vehicle moves, team reward)
     parallel_env_traffic / env_traffic           ``cv2x/Traffic-v0`` (vehicles drive; vehicle 0, or with
                                                  ``movers=None`` every vehicle, commands its speed and lane)
+    parallel_env_traffic_v1 / env_traffic_v1     ``cv2x/Traffic-v1`` (the same, observation version 4: measured)
 
 The ids, the factories and their registration are :mod:`cv2x_marl.env.registry`'s: ``import
-cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0``, ``cv2x/Traffic-v0``
+cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0``, ``cv2x/Traffic-v0`` / ``-v1``
 (``pettingzoo.make("parallel", ...)`` and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium
 envs ``cv2x/SingleMover-v0`` .. ``-v3`` and ``cv2x/Traffic-v0``. :class:`MobilityEnv` and
 :class:`ObservationLayout` are imported on first use, so that importing the package (the registry, for
@@ -28,12 +29,14 @@ from cv2x_marl.env.registry import (
     env,
     env_cooperative,
     env_traffic,
+    env_traffic_v1,
     env_v1,
     env_v2,
     env_v3,
     parallel_env,
     parallel_env_cooperative,
     parallel_env_traffic,
+    parallel_env_traffic_v1,
     parallel_env_v1,
     parallel_env_v2,
     parallel_env_v3,
@@ -60,12 +63,14 @@ __all__ = [
     "env",
     "env_cooperative",
     "env_traffic",
+    "env_traffic_v1",
     "env_v1",
     "env_v2",
     "env_v3",
     "parallel_env",
     "parallel_env_cooperative",
     "parallel_env_traffic",
+    "parallel_env_traffic_v1",
     "parallel_env_v1",
     "parallel_env_v2",
     "parallel_env_v3",

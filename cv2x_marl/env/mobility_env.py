@@ -34,7 +34,6 @@ from cv2x_marl.env.observation import (
 )
 from cv2x_marl.env.options import (
     COOPERATIVE_DEFAULTS,
-    TRAFFIC_DEFAULTS,
     V1_DEFAULTS,
     V2_DEFAULTS,
     V3_DEFAULTS,
@@ -786,15 +785,3 @@ class CooperativeEnv(MobilityEnv):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**{**COOPERATIVE_DEFAULTS, **kwargs})
-
-
-class TrafficParallelEnv(MobilityEnv):
-    """``cv2x/Traffic-v0`` as a PettingZoo ParallelEnv: :class:`MobilityEnv` with :data:`TRAFFIC_DEFAULTS`, every
-    vehicle an agent; ``movers`` (default ``[0]``: the Gymnasium id's task) drive with their own speed and lane
-    commands, ``movers=None`` makes every vehicle drive; each agent is rewarded with its own period's eq. 12
-    utility per target receiver; keyword arguments as :class:`MobilityEnv`."""
-
-    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_traffic_v0"}
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**{**TRAFFIC_DEFAULTS, "movers": [0], **kwargs})

@@ -9,10 +9,11 @@ Two families of four versions each, and the cooperative task (the defaults of ea
     cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
     cv2x/Traffic-v0       Gymnasium, vehicles drive (lane model), vehicle 0 commands its speed and lane
                           (:class:`~cv2x_marl.env.single.TrafficEnv`); also PettingZoo
-                          (:class:`~cv2x_marl.env.mobility_env.TrafficParallelEnv`: every vehicle an agent,
+                          (:class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnv`: every vehicle an agent,
                           vehicle 0 drives, ``movers=None``: every vehicle drives)
     cv2x/Traffic-v1       Traffic-v0 observing what the mover measured on the road (observation version 4:
-                          RSRP, SCI resources, own SPS state; :class:`~cv2x_marl.env.single.TrafficEnvV1`)
+                          RSRP, SCI resources, own SPS state; :class:`~cv2x_marl.env.single.TrafficEnvV1`);
+                          also PettingZoo (:class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnvV1`)
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
@@ -76,6 +77,7 @@ _PETTINGZOO_SUFFIX = {
     **{i: ("" if v == "v0" else f"_{v}") for v, i in zip(VERSIONS, MOBILITY_IDS, strict=True)},
     "cv2x/Cooperative-v0": "_cooperative",
     "cv2x/Traffic-v0": "_traffic",
+    "cv2x/Traffic-v1": "_traffic_v1",
 }
 
 
@@ -149,9 +151,17 @@ def parallel_env_cooperative(**kwargs: Any) -> MobilityEnv:
 def parallel_env_traffic(**kwargs: Any) -> MobilityEnv:
     """``cv2x/Traffic-v0`` as a ParallelEnv: vehicles drive the lane model, vehicle 0 commands its speed and lane
     (``movers=None``: every vehicle drives its own, each rewarded with its own period utility)."""
-    from cv2x_marl.env.mobility_env import TrafficParallelEnv
+    from cv2x_marl.env.traffic_parallel import TrafficParallelEnv
 
     return TrafficParallelEnv(**kwargs)
+
+
+def parallel_env_traffic_v1(**kwargs: Any) -> MobilityEnv:
+    """``cv2x/Traffic-v1`` as a ParallelEnv: ``cv2x/Traffic-v0`` with observation version 4 (what each agent
+    measured on the road); ``movers`` as :func:`parallel_env_traffic`."""
+    from cv2x_marl.env.traffic_parallel import TrafficParallelEnvV1
+
+    return TrafficParallelEnvV1(**kwargs)
 
 
 def raw_env(**kwargs: Any) -> Any:
@@ -201,6 +211,13 @@ def env_traffic(**kwargs: Any) -> Any:
     from pettingzoo.utils.conversions import parallel_to_aec
 
     return parallel_to_aec(parallel_env_traffic(**kwargs))
+
+
+def env_traffic_v1(**kwargs: Any) -> Any:
+    """AEC version of ``cv2x/Traffic-v1`` with the order-enforcing wrapper."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env_traffic_v1(**kwargs))
 
 
 # -- registration -----------------------------------------------------------------------------------

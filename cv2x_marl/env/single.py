@@ -134,7 +134,7 @@ class TrafficEnv(SingleMoverEnv):
     target receiver; the observation is v0's block plus the driving entries; the infos carry the episode's
     means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``). ``preset="sumo-grid"``: SUMO
     drives instead of the lane model; the same id in PettingZoo is
-    :class:`~cv2x_marl.env.mobility_env.TrafficParallelEnv`."""
+    :class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnv`."""
 
     defaults = "traffic-v0"
     label = "Traffic-v0"

@@ -200,7 +200,8 @@ def test_parallel_variant_every_vehicle_drives() -> None:
         assert rew[a] == info[a]["utility"] == pytest.approx(want, rel=1e-12, abs=1e-12)
 
 
-def test_pettingzoo_id_api_seeding_and_the_gymnasium_task() -> None:
+@pytest.mark.parametrize("version", ["v0", "v1"])
+def test_pettingzoo_id_api_seeding_and_the_gymnasium_task(version: str) -> None:
     """The PettingZoo id passes PettingZoo's API and seeding tests (vehicle 0 driving, and every vehicle), and
     with its default movers (vehicle 0) is the Gymnasium id's task: the same observations and rewards."""
     import pettingzoo
@@ -208,12 +209,16 @@ def test_pettingzoo_id_api_seeding_and_the_gymnasium_task() -> None:
     from pettingzoo.test.seed_test import parallel_seed_test
 
     from cv2x_marl import env as env_module
-    from cv2x_marl.env.mobility_env import TrafficParallelEnv
+    from cv2x_marl.env.traffic_parallel import TrafficParallelEnv, TrafficParallelEnvV1
 
-    par = pettingzoo.make("parallel", "cv2x/Traffic-v0", max_cycles=5)
+    env_id = f"cv2x/Traffic-{version}"
+    factory = env_module.parallel_env_traffic if version == "v0" else env_module.parallel_env_traffic_v1
+    par = pettingzoo.make("parallel", env_id, max_cycles=5)
     assert isinstance(par, TrafficParallelEnv) and np.flatnonzero(par.mover_mask).tolist() == [0] and par.drives
-    assert np.flatnonzero(make_parallel_env("cv2x/Traffic-v0", movers=None).mover_mask).size == par.n
-    gym_env = gym.make("cv2x/Traffic-v0", max_cycles=5)
+    assert isinstance(par, TrafficParallelEnvV1) == (version == "v1")
+    assert par.layout.version == (0 if version == "v0" else 4)
+    assert np.flatnonzero(make_parallel_env(env_id, movers=None).mover_mask).size == par.n
+    gym_env = gym.make(env_id, max_cycles=5)
     obs, _ = par.reset(seed=8)
     ob, _ = gym_env.reset(seed=8)
     np.testing.assert_array_equal(obs["vehicle_0"], ob)
@@ -224,7 +229,7 @@ def test_pettingzoo_id_api_seeding_and_the_gymnasium_task() -> None:
         ob, r, *_ = gym_env.step(acts["vehicle_0"])
         np.testing.assert_array_equal(obs["vehicle_0"], ob)
         assert rew["vehicle_0"] == r
-    parallel_api_test(env_module.parallel_env_traffic(max_cycles=5), num_cycles=10)
-    parallel_api_test(env_module.parallel_env_traffic(max_cycles=5, movers=None), num_cycles=10)
-    parallel_seed_test(lambda: env_module.parallel_env_traffic(max_cycles=5, movers=None), num_cycles=8)
-    api_test(pettingzoo.make("aec", "cv2x/Traffic-v0", max_cycles=3), num_cycles=6)
+    parallel_api_test(factory(max_cycles=5), num_cycles=10)
+    parallel_api_test(factory(max_cycles=5, movers=None), num_cycles=10)
+    parallel_seed_test(lambda: factory(max_cycles=5, movers=None), num_cycles=8)
+    api_test(pettingzoo.make("aec", env_id, max_cycles=3), num_cycles=6)
