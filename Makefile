@@ -1,6 +1,9 @@
 # make install: create .venv and install cv2x_marl with every extra, under constraints.txt (idempotent)
 # make run:     install, then the main job
 # make test:    install, then lint (ruff), types (mypy) and the test suite (pytest)
+# make numba-cache: drop numba's on-disk caches when a compiled module's source changed (numba keys a cache
+#               to its own file only, so a kernel calling into a changed module would keep stale code);
+#               run by make test and make run
 # make test-portable: the kernel-equality tests (pytest -m kernel_equality) again under numpy's baseline
 #               SIMD paths and numba's generic x86-64 target, with a fresh numba cache, then once more with
 #               numpy's exp/log/log10/power moved by 1-2 ulp (tests/conftest.py) (.ci/run runs it)
@@ -9,7 +12,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install run test test-portable lint bench docs clean
+.PHONY: install run test test-portable lint bench docs clean numba-cache
 
 install: $(STAMP)
 
@@ -18,7 +21,13 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -c constraints.txt -e ".[train,ray,torchrl,sumo,dev]"
 	touch $(STAMP)
 
-run: install
+numba-cache:
+	@h=$$(grep -rl --include='*.py' njit cv2x_marl | sort | xargs cat | sha256sum | cut -c1-16); \
+	if [ "$$(cat $(VENV)/.numba-sources 2>/dev/null)" != "$$h" ]; then \
+		find cv2x_marl -name '*.nb[ic]' -delete; mkdir -p $(VENV); echo "$$h" > $(VENV)/.numba-sources; \
+		echo "numba caches cleared (compiled sources changed)"; fi
+
+run: install numba-cache
 	$(BIN)/cv2x-marl reproduce --quick --out results --overwrite
 
 lint: install
@@ -26,7 +35,7 @@ lint: install
 	$(BIN)/ruff format --check cv2x_marl tests benchmarks examples
 	$(BIN)/mypy cv2x_marl
 
-test: lint
+test: lint numba-cache
 	$(BIN)/python -m pytest
 
 PORTABLE_ENV := NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR" NUMBA_CPU_NAME=generic
