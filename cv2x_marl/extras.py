@@ -16,6 +16,7 @@ from types import ModuleType
 EXTRA_OF = {
     "torch": "train",
     "stable_baselines3": "train",
+    "sb3_contrib": "train",
     "tensorboard": "train",
     "pandas": "train",
     "ray": "ray",

@@ -15,11 +15,29 @@ if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 
+def _is_recurrent_save(path: Path) -> bool:
+    """Whether an SB3 save holds sb3-contrib's recurrent policy (its ``data`` names the policy's module)."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return False  # PPO.load reports what is wrong with the file
+    module = data.get("policy_class", {}).get("__module__", "") if isinstance(data, dict) else ""
+    return isinstance(module, str) and module.startswith("sb3_contrib.common.recurrent")
+
+
 class PpoPolicy(BatchPolicy):
     """A stable-baselines3 PPO model (shared across agents) acting deterministically.
 
+    A recurrent model (``ppo.recurrent: true``: sb3-contrib's ``RecurrentPPO``) keeps one LSTM state per
+    agent over the episode, from zeros at :meth:`reset`, as it was trained (``episode_start`` at the first
+    step).
+
     Args:
-        path: the ``.zip`` written by ``cv2x-marl train`` (or any SB3 PPO save).
+        path: the ``.zip`` written by ``cv2x-marl train`` (or any SB3 PPO / RecurrentPPO save).
         env: the env it will act in; its observation and action spaces must match the model's.
     """
 
@@ -32,10 +50,12 @@ class PpoPolicy(BatchPolicy):
             if not path.exists():
                 raise ValueError(f"PPO model file {path} does not exist")
             check_file(path)  # against the checksum in the run folder's run.json, when it has one
-            PPO = require("stable_baselines3", f"loading the PPO model {path}").PPO
-
+            if _is_recurrent_save(path):
+                algo = require("sb3_contrib", f"loading the recurrent PPO model {path}").RecurrentPPO
+            else:
+                algo = require("stable_baselines3", f"loading the PPO model {path}").PPO
             try:
-                self.model = PPO.load(str(path), device="cpu")
+                self.model = algo.load(str(path), device="cpu")
             except Exception as exc:  # any load failure is reported with the file name
                 raise ValueError(f"cannot load PPO model {path}: {type(exc).__name__}: {exc}") from exc
         if env is not None:
@@ -47,6 +67,24 @@ class PpoPolicy(BatchPolicy):
                     "(another vehicle count or n_neighbours?)"
                 )
 
+        self.recurrent = hasattr(self.model.policy, "lstm_actor")
+        self._lstm_state: Any = None
+        self._starts: np.ndarray | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        """A new episode: a recurrent model's LSTM states start from zeros."""
+        self._lstm_state = None
+        self._starts = None
+
     def _predict(self, obs: np.ndarray) -> np.ndarray:
-        act, _ = self.model.predict(obs, deterministic=True)
+        if not self.recurrent:
+            act, _ = self.model.predict(obs, deterministic=True)
+            return np.asarray(act)
+        n = obs.shape[0]
+        if self._starts is None or self._starts.shape[0] != n:  # first step (or the agents changed)
+            self._lstm_state, self._starts = None, np.ones(n, dtype=bool)
+        act, self._lstm_state = self.model.predict(
+            obs, state=self._lstm_state, episode_start=self._starts, deterministic=True
+        )
+        self._starts = np.zeros(n, dtype=bool)
         return np.asarray(act)

@@ -39,7 +39,9 @@ from cv2x_marl.rl.train_config import (  # noqa: F401 - re-exported: the configu
 
 def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = None, layout: Any = None) -> Any:
     """A fresh SB3 PPO (MLP policy, CPU) with the hyperparameters of ``p`` on the VecEnv ``vec``; ``layout``:
-    the env's :class:`~cv2x_marl.env.observation.ObservationLayout`, needed by ``p.encoder`` other than ``mlp``."""
+    the env's :class:`~cv2x_marl.env.observation.ObservationLayout`, needed by ``p.encoder`` other than ``mlp``.
+    ``p.recurrent``: sb3-contrib's ``RecurrentPPO`` with ``MlpLstmPolicy`` (an LSTM of ``p.lstm_units`` for the
+    actor and one for the critic, after the features), the same hyperparameters."""
     from stable_baselines3 import PPO
 
     policy_kwargs: dict[str, Any] = {"net_arch": list(p.net_arch), "log_std_init": p.log_std_init}
@@ -47,8 +49,16 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
         from cv2x_marl.rl.encoders import encoder_policy_kwargs
 
         policy_kwargs.update(encoder_policy_kwargs(p.encoder, p.encoder_units, layout))
-    return PPO(
-        "MlpPolicy",
+    algo: Any = PPO
+    policy = "MlpPolicy"
+    if p.recurrent:
+        from cv2x_marl.extras import require
+
+        algo = require("sb3_contrib", "ppo.recurrent (sb3-contrib's RecurrentPPO)").RecurrentPPO
+        policy = "MlpLstmPolicy"
+        policy_kwargs["lstm_hidden_size"] = p.lstm_units
+    return algo(
+        policy,
         vec,
         learning_rate=p.learning_rate,
         n_steps=p.n_steps,
@@ -510,12 +520,11 @@ def _train(
     rollout: int,
 ) -> dict[str, Any]:
     import torch
-    from stable_baselines3 import PPO
 
     write_json(run_dir / "train_config.json", resolved)
     ckpt = latest_checkpoint(run_dir) if resume else None
     if ckpt is not None:
-        model = PPO.load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
+        model = type(model).load(str(ckpt), env=vec, device="cpu", tensorboard_log=str(run_dir / "tb"))
         # continue from the steps trained on: a checkpoint written during a rollout counts steps
         # that were collected but never trained on
         model.num_timesteps = trained_steps(model.num_timesteps, rollout)

@@ -48,6 +48,11 @@ class PpoConfig:
     encoder: str = "mlp"
     #: features (:class:`cv2x_marl.rl.encoders.NeighbourEncoder`), d = ``encoder_units``
     encoder_units: int = 64
+    #: an LSTM between the features and the MLPs (sb3-contrib's ``RecurrentPPO``, ``MlpLstmPolicy``): the
+    #: policy carries a memory over the episode (what it measured earlier, how the road moved)
+    recurrent: bool = False
+    #: hidden units of the actor's and the critic's LSTM (``recurrent: true``)
+    lstm_units: int = 64
 
     def __post_init__(self) -> None:
         """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
@@ -87,6 +92,11 @@ class PpoConfig:
         if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
             raise TrainError(f"ppo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
         object.__setattr__(self, "encoder_units", _check_count("ppo.encoder_units", self.encoder_units))
+        if not isinstance(self.recurrent, bool):
+            raise TrainError(f"ppo.recurrent must be true or false, got {self.recurrent!r}")
+        object.__setattr__(self, "lstm_units", _check_count("ppo.lstm_units", self.lstm_units))
+        if self.lstm_units > MAX_LAYER_UNITS:
+            raise TrainError(f"ppo.lstm_units must be an integer in [1, {MAX_LAYER_UNITS:,}], got {self.lstm_units}")
         if self.encoder_units > MAX_LAYER_UNITS:
             raise TrainError(
                 f"ppo.encoder_units must be an integer in [1, {MAX_LAYER_UNITS:,}], got {self.encoder_units}"
@@ -152,7 +162,7 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["ppo"]["net_arch"] = list(self.ppo.net_arch)
-        for key in ("encoder", "encoder_units"):  # added later: left out at their defaults (old runs resume)
+        for key in ("encoder", "encoder_units", "recurrent", "lstm_units"):  # added later: left out at their defaults
             if d["ppo"][key] == getattr(PpoConfig, key):
                 del d["ppo"][key]
         return d
