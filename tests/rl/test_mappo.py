@@ -103,7 +103,7 @@ def test_same_seed_same_learning_curve_and_parameters(tmp_path: Path) -> None:
     assert np.all(np.abs(loaded) <= 1.0)
 
 
-def test_loader_and_config_errors(tmp_path: Path) -> None:
+def test_loader_and_config_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     env = make_parallel_env("cv2x/Cooperative-v0", max_cycles=10, overrides=SCENE)
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a torch file")
@@ -143,7 +143,13 @@ def test_loader_and_config_errors(tmp_path: Path) -> None:
         config_algo(f, "ppo")
     with pytest.raises(TrainError, match="start_pool"):
         train_mappo(MappoConfig(env={"start_pool": -1}), 10, 0, tmp_path / "never", progress=False)
+    out = ["--out", str(tmp_path / "never")]
+    assert main(["train", "--config", str(f), "--resume", *out]) == 2  # refused: not resumable
+    assert main(["train", "--config", str(f), "--algo", "ppo", *out]) == 2  # the file says mappo
+    assert main(["train", "--algo", "sac", *out]) == 2
     assert not (tmp_path / "never").exists()
+    err = capsys.readouterr().err
+    assert "not resumable" in err and "differ" in err and "algorithms: ppo, mappo" in err
 
 
 def test_quick_training_beats_random_on_the_team_utility(tmp_path: Path) -> None:
