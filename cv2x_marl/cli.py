@@ -297,10 +297,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    from cv2x_marl.rl.mappo_config import config_algo
     from cv2x_marl.rl.train import load_train_config, run_settings, train
 
-    if args.algo != "ppo":
-        raise TrainError(f"--algo {args.algo!r} is not available; algorithms: ppo")
+    if config_algo(args.config, args.algo) == "mappo":  # docs/rl.md, "MAPPO"
+        from cv2x_marl.rl.mappo import cli_train
+
+        return cli_train(args, DEFAULT_TIMESTEPS, _print_json)
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
     from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", DEFAULT_TIMESTEPS)
@@ -596,9 +599,9 @@ def build_parser() -> argparse.ArgumentParser:
     _benchmark_arguments(p, COUNT, OVERWRITE_HELP)
     p.set_defaults(func=_cmd_benchmark)
 
-    p = sub.add_parser("train", help="train PPO movers (parameter sharing) with stable-baselines3")
+    p = sub.add_parser("train", help="train PPO movers (SB3, parameter sharing) or MAPPO (TorchRL, algo: mappo)")
     p.add_argument("--env", default=None, choices=ENV_CHOICES)
-    p.add_argument("--algo", default="ppo")
+    p.add_argument("--algo", default=None, help="ppo | mappo (default: the --config file's algo, else ppo)")
     p.add_argument(
         "--timesteps",
         type=COUNT,

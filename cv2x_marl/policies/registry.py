@@ -9,7 +9,8 @@
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
-    ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save)
+    ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save); a ``.pt``
+                        file: :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor)
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
 :mod:`cv2x_marl.policies.baselines`.
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
+from cv2x_marl.policies.mappo import MappoPolicy, is_mappo_file
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
@@ -116,5 +118,6 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         estimator = "model" if spec == "planner" else "sensing"
         return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)
     if spec.startswith(PPO_PREFIX):
-        return PpoPolicy(Path(spec[len(PPO_PREFIX) :]), env)
+        path = Path(spec[len(PPO_PREFIX) :])
+        return MappoPolicy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

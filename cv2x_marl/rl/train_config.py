@@ -180,8 +180,8 @@ def env_arguments(env_id: str) -> tuple[str, ...]:
     return tuple(n for n in inspect.signature(MobilityEnv.__init__).parameters if n not in skip)
 
 
-#: what a run folder's ``train_config.json`` holds besides the configuration
-RUN_KEYS = ("seed", "timesteps")
+#: what a run folder's ``train_config.json`` holds besides the configuration (and ``algo``, read by the CLI)
+RUN_KEYS = ("seed", "timesteps", "algo")
 
 
 def run_settings(path: Path | None) -> dict[str, int]:

@@ -1,0 +1,83 @@
+"""A MAPPO actor saved by ``cv2x-marl train`` (``algo: mappo``) as a policy (``--policy ppo:PATH/model.pt``).
+
+``model.pt`` holds plain values and tensors (read with ``torch.load(weights_only=True)``: no pickled code): the
+format tag, the env id, the actor's keyword arguments and weights (and the critic's, unused here). The actor
+class is :class:`cv2x_marl.rl.mappo_nets.SharedActor`, imported when a file is loaded (as SB3's zip files import
+their policy classes, :mod:`cv2x_marl.policies.ppo`). It acts deterministically: ``tanh`` of the Gaussian's mean.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cv2x_marl.extras import require
+from cv2x_marl.policies.base import BatchPolicy
+from cv2x_marl.runs import check_file
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+#: the format tag of ``model.pt`` (:data:`cv2x_marl.rl.mappo.MODEL_FORMAT`)
+MODEL_FORMAT = "cv2x_marl.mappo"
+#: the suffix that makes ``ppo:PATH`` a MAPPO actor instead of an SB3 zip
+SUFFIX = ".pt"
+#: the module and class of the actor (resolved at load time: the networks live in the RL layer)
+ACTOR_CLASS = ("cv2x_marl.rl.mappo_nets", "SharedActor")
+
+
+def is_mappo_file(path: str | Path) -> bool:
+    """Whether ``ppo:PATH`` names a MAPPO actor (a ``.pt`` file) rather than an SB3 ``.zip``."""
+    return Path(path).suffix == SUFFIX
+
+
+class MappoPolicy(BatchPolicy):
+    """A MAPPO shared actor acting deterministically for every agent present.
+
+    Args:
+        path: the ``model.pt`` of a MAPPO run folder.
+        env: the env it will act in; its observation size must be the actor's.
+
+    Raises:
+        ValueError: a missing or unreadable file, another format, or another observation size (each naming the file).
+    """
+
+    def __init__(self, path: str | Path, env: MobilityEnv | None = None) -> None:
+        super().__init__(self._predict, "mappo")
+        path = Path(path)
+        if not path.exists():
+            raise ValueError(f"MAPPO model file {path} does not exist")
+        check_file(path)  # against the checksum in the run folder's run.json, when it has one
+        torch = require("torch", f"loading the MAPPO model {path}")
+        try:
+            data = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # any load failure is reported with the file name
+            raise ValueError(f"cannot load MAPPO model {path}: {type(exc).__name__}: {exc}") from exc
+        if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
+            raise ValueError(f"{path} is not a MAPPO model of cv2x-marl train (no format {MODEL_FORMAT!r})")
+        self.env_id = str(data["env_id"])
+        module, name = ACTOR_CLASS
+        actor_class: Any = getattr(importlib.import_module(module), name)
+        try:
+            self.actor = actor_class(**data["actor_kwargs"])
+            self.actor.load_state_dict(data["actor_state"])
+        except Exception as exc:
+            raise ValueError(f"cannot rebuild the MAPPO actor of {path}: {type(exc).__name__}: {exc}") from exc
+        self.actor.eval()
+        self._torch = torch
+        if env is not None:
+            want = tuple(env.observation_space(env.possible_agents[0]).shape)
+            got = (int(self.actor.obs_size),)
+            if want != got:
+                raise ValueError(
+                    f"MAPPO model {path} expects observations of shape {got}, the env gives {want} "
+                    "(another vehicle count or n_neighbours?)"
+                )
+
+    def _predict(self, obs: np.ndarray) -> np.ndarray:
+        """[n_agents, obs_size] -> [n_agents, 2] in [-1, 1]."""
+        with self._torch.no_grad():
+            return self.actor.deterministic(self._torch.from_numpy(np.ascontiguousarray(obs))).numpy()

@@ -1,0 +1,221 @@
+"""The configuration of a MAPPO run (``cv2x-marl train --config FILE`` with ``algo: mappo``); no torch import.
+
+A MAPPO file is a training config (docs/rl.md) whose top-level ``algo`` is ``mappo``:
+
+.. code-block:: yaml
+
+    algo: mappo
+    env_id: cv2x/Cooperative-v0
+    copies: 8                 # env copies K: K episodes per iteration, each of max_cycles steps
+    env: {max_cycles: 100, max_step_m: 5.0, start_pool: 256}
+    mappo: {learning_rate: 3e-4, n_epochs: 5, minibatch_steps: 200, ...}   # MappoSettings
+    eval_every: 10            # iterations between learning-curve rows (eval.csv)
+    eval_episodes: 8
+    eval_seed: 10000
+
+:func:`config_algo` tells the CLI which trainer a file (or ``--algo``) asks for; :func:`load_mappo_config`
+reads and checks a MAPPO file, rejecting unknown keys by name with the allowed ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cv2x_marl.checks import as_real, is_int
+from cv2x_marl.rl.errors import TrainError
+
+#: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
+ALGOS = ("ppo", "mappo")
+#: the env ids MAPPO trains on: every vehicle moves and the reward is the team's, so one critic value per
+#: env step (on ``state()``) serves every agent
+MAPPO_ENV_IDS = ("cv2x/Cooperative-v0",)
+#: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.rl.encoders`; ``mlp``: the flat observation)
+ENCODERS = ("mlp", "deepsets", "attention")
+#: the widest hidden layer of ``actor_net`` / ``critic_net`` / ``encoder_units``
+MAX_UNITS = 65_536
+
+
+def _count(name: str, value: Any, low: int = 1) -> int:
+    """``value`` as an int >= ``low`` (a whole float such as YAML's ``1e4`` counts; bools do not)."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not is_int(value) or value < low:
+        raise TrainError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def _layers(name: str, value: Any) -> tuple[int, ...]:
+    rule = f"a non-empty list of integers in [1, {MAX_UNITS:,}] (units per hidden layer)"
+    if not isinstance(value, tuple | list) or not value:
+        raise TrainError(f"{name} must be {rule}, got {value!r}")
+    try:
+        units = tuple(_count(name, v) for v in value)
+    except TrainError:
+        raise TrainError(f"{name} must be {rule}, got {list(value)!r}") from None
+    if max(units) > MAX_UNITS:
+        raise TrainError(f"{name} must be {rule}, got {list(value)!r}")
+    return units
+
+
+@dataclass(frozen=True)
+class MappoSettings:
+    """MAPPO hyperparameters (the ``mappo:`` mapping; Yu et al., *The Surprising Effectiveness of PPO in
+    Cooperative Multi-Agent Games*, NeurIPS 2022)."""
+
+    learning_rate: float = 3e-4
+    #: passes over one iteration's samples
+    n_epochs: int = 5
+    #: env steps (each with all its agents) per mini-batch
+    minibatch_steps: int = 200
+    gamma: float = 0.95
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    #: weight of the (Monte Carlo) entropy of the squashed Gaussian; 0 switches the term off
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    #: initial log standard deviation of the Gaussian before the tanh squashing
+    log_std_init: float = -0.5
+    #: hidden layers of the shared actor's MLP (after the encoder)
+    actor_net: tuple[int, ...] = (128, 128)
+    #: hidden layers of the centralised critic's MLP on ``state()``
+    critic_net: tuple[int, ...] = (256, 256)
+    encoder: str = "deepsets"
+    #: d of :class:`~cv2x_marl.rl.encoders.NeighbourEncoder` (features 3 d)
+    encoder_units: int = 64
+
+    def __post_init__(self) -> None:
+        reals = {
+            "learning_rate": (lambda v: v > 0, "a number > 0"),
+            "gamma": (lambda v: 0 < v <= 1, "a number in (0, 1]"),
+            "gae_lambda": (lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+            "clip_range": (lambda v: v > 0, "a number > 0"),
+            "ent_coef": (lambda v: v >= 0, "a number >= 0"),
+            "vf_coef": (lambda v: v >= 0, "a number >= 0"),
+            "max_grad_norm": (lambda v: v > 0, "a number > 0"),
+            "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]"),
+        }
+        for name, (ok, allowed) in reals.items():
+            value = as_real(getattr(self, name))
+            if value is None or not ok(value):
+                raise TrainError(f"mappo.{name} must be {allowed}, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, value)
+        for name in ("n_epochs", "minibatch_steps", "encoder_units"):
+            object.__setattr__(self, name, _count(f"mappo.{name}", getattr(self, name)))
+        if self.encoder_units > MAX_UNITS:
+            raise TrainError(f"mappo.encoder_units must be an integer in [1, {MAX_UNITS:,}], got {self.encoder_units}")
+        for name in ("actor_net", "critic_net"):
+            object.__setattr__(self, name, _layers(f"mappo.{name}", getattr(self, name)))
+        if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
+            raise TrainError(f"mappo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
+
+
+@dataclass(frozen=True)
+class MappoConfig:
+    """Everything a MAPPO run needs besides timesteps and seed."""
+
+    env_id: str = "cv2x/Cooperative-v0"
+    #: env copies K: each iteration collects one episode (``env.max_cycles`` steps) of each copy
+    copies: int = 8
+    #: env keyword arguments; ``start_pool`` P (required, >= 1): episodes start from the protocol's first P
+    #: training seeds (:func:`cv2x_marl.env.seeds.training_pool`), never from a held-out one
+    env: dict[str, Any] = field(default_factory=lambda: {"max_cycles": 100, "max_step_m": 5.0, "start_pool": 256})
+    mappo: MappoSettings = field(default_factory=MappoSettings)
+    #: iterations between two learning-curve rows (``eval.csv``)
+    eval_every: int = 10
+    eval_episodes: int = 8
+    eval_seed: int = 10_000
+    algo: str = "mappo"
+
+    def __post_init__(self) -> None:
+        from cv2x_marl.rl.train import MAX_COPIES, env_arguments
+
+        if self.algo != "mappo":
+            raise TrainError(f"algo must be 'mappo' in a MAPPO config, got {self.algo!r}")
+        if self.env_id not in MAPPO_ENV_IDS:
+            raise TrainError(
+                f"env_id {self.env_id!r}: MAPPO trains on {', '.join(MAPPO_ENV_IDS)} (every vehicle moves for the "
+                "team reward); other ids train with algo: ppo"
+            )
+        for name in ("copies", "eval_every", "eval_episodes"):
+            object.__setattr__(self, name, _count(f"train.{name}", getattr(self, name)))
+        if self.copies > MAX_COPIES:
+            raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
+        object.__setattr__(self, "eval_seed", _count("train.eval_seed", self.eval_seed, low=0))
+        if not isinstance(self.env, dict):
+            raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
+        allowed = env_arguments(self.env_id)
+        bad = sorted(str(k) for k in self.env if k not in allowed)
+        if bad:
+            raise TrainError(
+                f"unknown env argument(s) {bad} in train.env of {self.env_id}; arguments: {', '.join(allowed)}"
+            )
+        for key in ("reward", "movers"):  # the critic's one value per step needs the team reward and every mover
+            if key in self.env:
+                raise TrainError(f"train.env.{key}: MAPPO keeps {self.env_id}'s own {key} (leave the key out)")
+        pool = self.env.get("start_pool")
+        if not is_int(pool) or int(pool) < 1:  # type: ignore[arg-type]
+            raise TrainError(
+                f"train.env.start_pool must be an integer >= 1 (MAPPO trains on the protocol's first start_pool "
+                f"training seeds), got {pool!r}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["mappo"]["actor_net"] = list(self.mappo.actor_net)
+        d["mappo"]["critic_net"] = list(self.mappo.critic_net)
+        return {"algo": d.pop("algo"), **d}
+
+
+def config_algo(path: Path | None, cli_algo: str | None) -> str:
+    """The trainer ``cv2x-marl train`` runs: ``--algo`` (``cli_algo``), else the config file's ``algo``, else ``ppo``.
+
+    Raises:
+        TrainError: an algorithm not in :data:`ALGOS`, or ``--algo`` and the file naming different ones.
+    """
+    from cv2x_marl.yamlcore import load_mapping
+
+    file_algo = None if path is None else load_mapping(path, "training config", TrainError).get("algo")
+    for where, algo in (("--algo", cli_algo), (f"{path}: algo", file_algo)):
+        if algo is not None and algo not in ALGOS:
+            raise TrainError(f"{where} {algo!r} is not available; algorithms: {', '.join(ALGOS)}")
+    if cli_algo is not None and file_algo is not None and cli_algo != file_algo:
+        raise TrainError(f"--algo {cli_algo} and the config's algo: {file_algo} differ (give one)")
+    return str(cli_algo or file_algo or "ppo")
+
+
+def load_mappo_config(path: Path | None, env_id: str | None = None, copies: int | None = None) -> MappoConfig:
+    """Read a MAPPO file (module docstring); a run folder's ``train_config.json`` is one (its ``seed`` and
+    ``timesteps`` are skipped: :func:`cv2x_marl.rl.train.run_settings` reads them). CLI values override the file.
+
+    Raises:
+        TrainError: unknown keys (named, with the allowed ones) or values out of range.
+    """
+    from cv2x_marl.yamlcore import load_mapping
+
+    data = {} if path is None else load_mapping(path, "training config", TrainError)
+    for key in ("seed", "timesteps"):
+        data.pop(key, None)
+    known = {f.name for f in dataclasses.fields(MappoConfig)}
+    bad = sorted(set(data) - known)
+    if bad:
+        raise TrainError(f"unknown MAPPO config key(s) {bad}; keys: {', '.join(sorted(known))}")
+    raw = data.pop("mappo", {}) or {}
+    if not isinstance(raw, dict):
+        raise TrainError(f"train.mappo must be a mapping of MAPPO settings, got {raw!r}")
+    settings_known = {f.name for f in dataclasses.fields(MappoSettings)}
+    bad = sorted(set(raw) - settings_known)
+    if bad:
+        raise TrainError(f"unknown mappo key(s) {bad}; keys: {', '.join(sorted(settings_known))}")
+    env = data.pop("env", {}) or {}
+    if not isinstance(env, dict):
+        raise TrainError(f"train.env must be a mapping of env arguments, got {env!r}")
+    cfg = MappoConfig(**{**data, "env": {**MappoConfig().env, **env}, "mappo": MappoSettings(**raw)})
+    if env_id is not None:
+        cfg = dataclasses.replace(cfg, env_id=env_id)
+    if copies is not None:
+        cfg = dataclasses.replace(cfg, copies=copies)
+    return cfg
