@@ -2,15 +2,15 @@
 
 ``model.pt`` holds plain values and tensors (read with ``torch.load(weights_only=True)``: no pickled code): the
 format tag, the env id, the actor's keyword arguments and weights (and the critic's, unused here). The actor
-class is :class:`cv2x_marl.rl.mappo_nets.SharedActor`, imported when a file is loaded (as SB3's zip files import
-their policy classes, :mod:`cv2x_marl.policies.ppo`). It acts deterministically: ``tanh`` of the Gaussian's mean.
+class is :class:`cv2x_marl.policies.mappo_nets.SharedActor` (this layer's: the trainer, :mod:`cv2x_marl.rl.mappo`,
+builds its actor from it too), imported when a file is loaded (torch is an extra). It acts deterministically:
+``tanh`` of the Gaussian's mean.
 """
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,8 +25,6 @@ if TYPE_CHECKING:
 MODEL_FORMAT = "cv2x_marl.mappo"
 #: the suffix that makes ``ppo:PATH`` a MAPPO actor instead of an SB3 zip
 SUFFIX = ".pt"
-#: the module and class of the actor (resolved at load time: the networks live in the RL layer)
-ACTOR_CLASS = ("cv2x_marl.rl.mappo_nets", "SharedActor")
 
 
 def is_mappo_file(path: str | Path) -> bool:
@@ -59,10 +57,10 @@ class MappoPolicy(BatchPolicy):
         if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
             raise ValueError(f"{path} is not a MAPPO model of cv2x-marl train (no format {MODEL_FORMAT!r})")
         self.env_id = str(data["env_id"])
-        module, name = ACTOR_CLASS
-        actor_class: Any = getattr(importlib.import_module(module), name)
+        from cv2x_marl.policies.mappo_nets import SharedActor
+
         try:
-            self.actor = actor_class(**data["actor_kwargs"])
+            self.actor = SharedActor(**data["actor_kwargs"])
             self.actor.load_state_dict(data["actor_state"])
         except Exception as exc:
             raise ValueError(f"cannot rebuild the MAPPO actor of {path}: {type(exc).__name__}: {exc}") from exc

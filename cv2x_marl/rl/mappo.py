@@ -1,7 +1,7 @@
 """MAPPO on TorchRL for ``cv2x/Cooperative-v0`` (``cv2x-marl train`` with ``algo: mappo``; docs/rl.md).
 
 Multi-agent PPO with a centralised critic (Yu et al., NeurIPS 2022): one actor shared by every vehicle reads
-the vehicle's own observation; the critic reads the env's global ``state()`` (:mod:`cv2x_marl.rl.mappo_nets`).
+the vehicle's own observation; the critic reads the env's global ``state()`` (:mod:`cv2x_marl.policies.mappo_nets`).
 The env rewards every vehicle with the team objective, so the critic gives one value per env step and every
 agent of that step shares its advantage.
 
@@ -79,8 +79,8 @@ class Mappo:
         from cv2x_marl.env.mobility_env import check_copies
         from cv2x_marl.env.registry import make_parallel_env
         from cv2x_marl.env.seeds import training_pool
-        from cv2x_marl.rl.encoders import layout_spec
-        from cv2x_marl.rl.mappo_nets import SharedActor, StateCritic
+        from cv2x_marl.policies.encoders import layout_spec
+        from cv2x_marl.policies.mappo_nets import SharedActor, StateCritic
 
         self.cfg = cfg
         try:

@@ -32,7 +32,7 @@ ALGOS = ("ppo", "mappo")
 #: the env ids MAPPO trains on: every vehicle moves and the reward is the team's, so one critic value per
 #: env step (on ``state()``) serves every agent
 MAPPO_ENV_IDS = ("cv2x/Cooperative-v0",)
-#: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.rl.encoders`; ``mlp``: the flat observation)
+#: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.policies.encoders`; ``mlp``: the flat observation)
 ENCODERS = ("mlp", "deepsets", "attention")
 #: the widest hidden layer of ``actor_net`` / ``critic_net`` / ``encoder_units``
 MAX_UNITS = 65_536
@@ -84,7 +84,7 @@ class MappoSettings:
     #: hidden layers of the centralised critic's MLP on ``state()``
     critic_net: tuple[int, ...] = (256, 256)
     encoder: str = "deepsets"
-    #: d of :class:`~cv2x_marl.rl.encoders.NeighbourEncoder` (features 3 d)
+    #: d of :class:`~cv2x_marl.policies.encoders.NeighbourEncoder` (features 3 d)
     encoder_units: int = 64
 
     def __post_init__(self) -> None:

@@ -46,7 +46,7 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
 
     policy_kwargs: dict[str, Any] = {"net_arch": list(p.net_arch), "log_std_init": p.log_std_init}
     if p.encoder != "mlp":
-        from cv2x_marl.rl.encoders import encoder_policy_kwargs
+        from cv2x_marl.policies.encoders import encoder_policy_kwargs
 
         policy_kwargs.update(encoder_policy_kwargs(p.encoder, p.encoder_units, layout))
     algo: Any = PPO

@@ -23,7 +23,7 @@ MAX_LAYER_UNITS = 65_536
 #: Python objects of one env copy besides its simulator arrays (measured: paper 0.33 MB per copy,
 #: of which 0.32 MB are the arrays :func:`estimate_training_memory` counts)
 _COPY_OVERHEAD_BYTES = 100_000
-#: ``ppo.encoder``: ``mlp`` (SB3's flat MLP) or a neighbour encoder (:mod:`cv2x_marl.rl.encoders`)
+#: ``ppo.encoder``: ``mlp`` (SB3's flat MLP) or a neighbour encoder (:mod:`cv2x_marl.policies.encoders`)
 ENCODERS = ("mlp", "deepsets", "attention")
 
 
@@ -46,7 +46,7 @@ class PpoConfig:
     log_std_init: float = 0.0
     #: what the MLPs read: ``mlp`` the flat observation, ``deepsets`` / ``attention`` a NeighbourEncoder's 3 d
     encoder: str = "mlp"
-    #: features (:class:`cv2x_marl.rl.encoders.NeighbourEncoder`), d = ``encoder_units``
+    #: features (:class:`cv2x_marl.policies.encoders.NeighbourEncoder`), d = ``encoder_units``
     encoder_units: int = 64
     #: an LSTM between the features and the MLPs (sb3-contrib's ``RecurrentPPO``, ``MlpLstmPolicy``): the
     #: policy carries a memory over the episode (what it measured earlier, how the road moved)

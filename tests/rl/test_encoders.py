@@ -17,8 +17,8 @@ from cv2x_marl.env.observation import (
     OWN_V4,
     ObservationLayout,
 )
+from cv2x_marl.policies.encoders import NeighbourEncoder, layout_spec, split_indices
 from cv2x_marl.policies.ppo import PpoPolicy
-from cv2x_marl.rl.encoders import NeighbourEncoder, layout_spec, split_indices
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.train import PpoConfig, TrainConfig, build_training, load_train_config
 

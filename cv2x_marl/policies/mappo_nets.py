@@ -3,7 +3,7 @@ critic on the env's ``state()``.
 
 * :class:`SharedActor`: one set of weights for every vehicle (parameter sharing; decentralised execution: it
   reads only a vehicle's observation [..., obs_size]). Its features are the flat observation (``encoder:
-  mlp``) or the permutation-invariant neighbour features of :class:`cv2x_marl.rl.encoders.NeighbourEncoder`
+  mlp``) or the permutation-invariant neighbour features of :class:`cv2x_marl.policies.encoders.NeighbourEncoder`
   (``deepsets`` / ``attention``, 3 d values); an MLP (tanh) maps them to the mean ``mu`` [..., 2] of a Gaussian
   whose standard deviation ``exp(log_std)`` [2] is a free parameter; actions are ``tanh`` of its samples
   (TorchRL's ``TanhNormal``), the deterministic action is ``tanh(mu)``.
@@ -24,7 +24,7 @@ try:
 except ImportError as _exc:  # the torchrl (or train) extra is not installed
     from cv2x_marl.extras import missing_extra
 
-    raise missing_extra("torch", "the MAPPO networks (cv2x_marl.rl.mappo_nets)", _exc) from _exc
+    raise missing_extra("torch", "the MAPPO networks (cv2x_marl.policies.mappo_nets)", _exc) from _exc
 
 
 def mlp(n_in: int, hidden: tuple[int, ...] | list[int], n_out: int, out_gain: float = 1.0) -> nn.Sequential:
@@ -50,7 +50,7 @@ class SharedActor(nn.Module):
         net: hidden layers of the MLP.
         encoder: ``mlp`` | ``deepsets`` | ``attention``.
         encoder_units: d of the neighbour encoder.
-        layout: :func:`cv2x_marl.rl.encoders.layout_spec` of the env's layout (needed by the neighbour encoders).
+        layout: :func:`cv2x_marl.policies.encoders.layout_spec` of the env's layout (needed by the neighbour encoders).
         log_std_init: the initial ``log_std``.
     """
 
@@ -80,10 +80,10 @@ class SharedActor(nn.Module):
         if encoder != "mlp":
             from gymnasium import spaces
 
-            from cv2x_marl.rl.encoders import NeighbourEncoder
+            from cv2x_marl.policies.encoders import NeighbourEncoder
 
             if layout is None:
-                raise ValueError(f"encoder={encoder} needs the env's layout (cv2x_marl.rl.encoders.layout_spec)")
+                raise ValueError(f"encoder={encoder} needs the env's layout (cv2x_marl.policies.encoders.layout_spec)")
             box = spaces.Box(-1.0, 1.0, (self.obs_size,))
             self.encoder = NeighbourEncoder(box, layout, pool=encoder, units=int(encoder_units))
             width = 3 * int(encoder_units)
