@@ -129,7 +129,7 @@ class MobilityEnv(ParallelEnv):
         rsrp_error_db: observation 3: standard deviation of the RSRP report error (dB).
         start_pool: ``reset()`` without a seed starts from one of the first ``start_pool`` seeds of the
             protocol's training list, their starts kept (:mod:`cv2x_marl.env.starts`); 0: fresh seeds.
-        accel_mps2, decel_mps2, drive_observation, episode_metrics: ``cv2x/Traffic-v0``'s driving on the lane
+        accel_mps2, decel_mps2, speed_command, drive_observation, episode_metrics: the driving on the lane
             model (:class:`~cv2x_marl.env.options.EnvOptions`; :data:`EPISODE_INFO_KEYS`, :data:`DRIVE_INFO_KEYS`).
     """
 
@@ -174,6 +174,7 @@ class MobilityEnv(ParallelEnv):
         rsrp_error_db: float = 3.0,
         start_pool: int = 0,
         accel_mps2: float = 2.6,
+        speed_command: str = "target",
         decel_mps2: float = 3.4,
         drive_observation: bool = False,
         episode_metrics: bool = False,
@@ -186,7 +187,8 @@ class MobilityEnv(ParallelEnv):
             privileged=privileged, reward_form=reward_form, settle_steps=settle_steps, model=model,
             action_mode=action_mode, replan_every=replan_every, reset_cache=reset_cache, traffic_action=traffic_action,
             team_objective=team_objective, shadow_field=shadow_field, sensing_window=sensing_window,
-            rsrp_error_db=rsrp_error_db, start_pool=start_pool, accel_mps2=accel_mps2, decel_mps2=decel_mps2,
+            rsrp_error_db=rsrp_error_db, start_pool=start_pool, accel_mps2=accel_mps2, speed_command=speed_command,
+            decel_mps2=decel_mps2,
             drive_observation=drive_observation, episode_metrics=episode_metrics,
         )  # fmt: skip
         cfg = opts.scenario()
@@ -510,7 +512,13 @@ class MobilityEnv(ParallelEnv):
     def speed_targets(self, act: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Target speeds and lane commands [N] of actions [N, 2] (:func:`~cv2x_marl.env.step.speed_commands`)."""
         active = self.t < self.max_cycles - self.settle_steps  # no command in the settle phase
-        return step_core.speed_commands(act, self.mover_mask, self.config.vehicles.speed_max_mps, active)
+        limit = self.config.vehicles.speed_max_mps
+        if self.options.speed_command == "change":  # a change of the own speed over the period (lane model)
+            bounds = (self.options.accel_mps2, self.options.decel_mps2, self.sim.rri / 1000.0)
+            return step_core.speed_change_commands(
+                act, self.mover_mask, self.sim.state.speed_mps, limit, *bounds, active
+            )
+        return step_core.speed_commands(act, self.mover_mask, limit, active)
 
     def _command_drive(self, act: NDArray[np.float64]) -> None:
         """The lane model's speed and lane commands (:meth:`cv2x_marl.sim.Simulator.set_drive`)."""

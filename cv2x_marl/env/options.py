@@ -46,6 +46,8 @@ ACTION_MODES = ("offset", "plan_residual")
 TRAFFIC_ACTIONS = ("offset", "speed")
 #: the team part of ``team`` / ``mixed`` rewards: the mean eq. 12 utility or the network mean PRR
 TEAM_OBJECTIVES = ("utility", "prr")
+#: ``speed_command``: what ``action[0]`` means with ``traffic_action="speed"`` on the lane model
+SPEED_COMMANDS = ("target", "change")
 #: the sensing window of TS 36.213 clause 14.1.1.6 (1000 ms) in 100-ms periods
 SENSING_WINDOW = 10
 #: standard deviation (dB) of the RSRP measurement error: the +-6 dB absolute accuracy of E-UTRA RSRP in
@@ -337,6 +339,15 @@ class EnvOptions:
         lo=0.0,
         lo_open=True,
     )
+    speed_command: str = _option(
+        "target",
+        "`traffic_action=speed` on the lane model: what `action[0]` in [-1, 1] commands: `target`, a target speed "
+        "from 0 to `vehicles.speed_max_mps`; `change`, a change of the own speed over the period, up to "
+        "`accel_mps2` (+1) / `decel_mps2` (-1) times the period, so a zero action holds the speed (what the road "
+        "version of `static` does); the road versions of `gbmu`, `sensing` and the ceiling act on targets and "
+        "refuse `change`",
+        choices=SPEED_COMMANDS,
+    )
     decel_mps2: float = _option(
         DECEL_MPS2,
         "`traffic_action=speed` on the lane model: the most a commanded speed falls per second (AASHTO's "
@@ -431,6 +442,8 @@ class EnvOptions:
             refuse("settle_steps", self.settle_steps, "integer in [0, max_cycles)")
         if self.replan_every is not None and self.observation != 2:
             refuse("replan_every", self.replan_every, "null unless observation is 2")
+        if self.speed_command != "target" and (self.mode != "traffic" or self.traffic_action != "speed"):
+            refuse("speed_command", self.speed_command, "target unless mode is traffic with traffic_action speed")
         if self.drive_observation and (self.mode != "traffic" or self.traffic_action != "speed"):
             refuse(
                 "drive_observation", self.drive_observation, "false unless mode is traffic with traffic_action speed"
@@ -483,6 +496,8 @@ class EnvOptions:
                 self.traffic_action,
                 " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=model or sumo)",
             )
+        if self.speed_command != "target" and cfg.vehicles.mobility != "model":
+            refuse("speed_command", self.speed_command, "target unless vehicles.mobility=model (the lane model)")
         for name in ("reset_cache", "start_pool"):  # a kept start is a copy of the simulator: not of libsumo's
             if getattr(self, name) and self.mode == "traffic" and cfg.vehicles.mobility == "sumo":
                 refuse(

@@ -459,6 +459,28 @@ def speed_commands(
     return target, lanes
 
 
+def speed_change_commands(
+    act: FloatArray,
+    mover_mask: NDArray[np.bool_],
+    speed_mps: FloatArray,
+    limit_mps: float,
+    accel_mps2: float,
+    decel_mps2: float,
+    period_s: float,
+    active: bool,
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """``speed_command="change"``: the movers' actions [N, 2] as target speeds [N] (m/s; NaN as
+    :func:`speed_commands`) and lane commands [N]: ``action[0]`` in [-1, 1] (clipped) changes the own speed
+    ``speed_mps`` [N] by ``a accel_mps2 period_s`` (a > 0) or ``a decel_mps2 period_s`` (a < 0), within
+    [0, ``limit_mps``], so a zero action holds the speed exactly; ``action[1]`` as :func:`speed_commands`."""
+    target, lanes = speed_commands(act, mover_mask, limit_mps, active)
+    if active:
+        a = np.minimum(np.maximum(act[mover_mask, 0], -1.0), 1.0)
+        change = np.where(a > 0.0, a * accel_mps2, a * decel_mps2) * period_s
+        target[mover_mask] = np.minimum(np.maximum(speed_mps[mover_mask] + change, 0.0), limit_mps)
+    return target, lanes
+
+
 def decode_actions(
     actions: Any,
     live: set[str],

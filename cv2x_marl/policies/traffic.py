@@ -41,14 +41,20 @@ _SPEED = OWN_DRIVE_NAMES.index("speed")
 _HEADING = OWN_DRIVE_NAMES.index("heading_x")
 
 
-def check_drive_env(env: MobilityEnv, name: str, lane_model: bool = False) -> None:
+def check_drive_env(env: MobilityEnv, name: str, lane_model: bool = False, target_speeds: bool = True) -> None:
     """Refuse an env whose movers are not driven by speed commands with the driving observation (``lane_model``:
-    also one on SUMO, for a policy that predicts with the lane model)."""
+    also one on SUMO, for a policy that predicts with the lane model; ``target_speeds``: also one whose
+    ``speed_command`` is not ``target``, for a policy that commands target speeds)."""
     if not env.layout.drive:
         raise ValueError(
             f"policy {name!r} (road version) needs an env whose movers drive with speed and lane commands and "
             "observe their driving entries (cv2x/Traffic-v0: mode=traffic, traffic_action=speed, "
             "vehicles.mobility=model or sumo, drive_observation=true)"
+        )
+    if target_speeds and getattr(env.options, "speed_command", "target") != "target":
+        raise ValueError(
+            f"policy {name!r} (road version) commands target speeds; the env has speed_command="
+            f"{env.options.speed_command!r} (a change of the own speed); allowed there: static, random, ppo:PATH"
         )
     if lane_model and not getattr(env, "drives", False):
         raise ValueError(
@@ -66,20 +72,25 @@ def speed_action(target_mps: FloatArray, limit_mps: float) -> FloatArray:
 class HoldSpeedPolicy:
     """``static`` on a road: keep the speed it has (read from its observation), no lane change.
 
-    The target is the observed speed (float32), so the speed holds to about 1e-6 m/s per step.
+    The target is the observed speed (float32), so the speed holds to about 1e-6 m/s per step; with the env's
+    ``speed_command="change"`` the action is zero, which holds it exactly.
     """
 
     name = "static"
 
     def __init__(self, env: MobilityEnv) -> None:
-        check_drive_env(env, self.name)
+        check_drive_env(env, self.name, target_speeds=False)
         self.layout = env.layout
+        #: ``speed_command="change"``: the zero action holds the speed exactly
+        self.change = env.options.speed_command == "change"
 
     def reset(self, seed: int | None = None) -> None:
         return None
 
     def act(self, observations: Observations) -> Actions:
         out: Actions = {}
+        if self.change:
+            return {a: np.zeros(2, dtype=np.float32) for a in observations}
         for a, ob in observations.items():
             speed = float(self.layout.own_drive(ob)[_SPEED])  # speed / limit
             out[a] = np.array([2.0 * speed - 1.0, 0.0], dtype=np.float32)

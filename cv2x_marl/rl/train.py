@@ -332,8 +332,11 @@ def _callbacks(
             return evaluate(cfg.env_id, policy, cfg.eval_episodes, cfg.eval_seed, None, env, progress=False)
 
         def _on_training_start(self) -> None:
-            # GBMU acts with plain offsets, whatever action mode the learned mover trains with
-            self.gbmu = self._eval("gbmu", {**cfg.env_for_training(), "action_mode": "offset"})
+            # GBMU acts with plain offsets (and target speeds on a road), whatever actions the learned mover has
+            env = {**cfg.env_for_training(), "action_mode": "offset"}
+            if env.get("speed_command", "target") != "target":
+                env["speed_command"] = "target"
+            self.gbmu = self._eval("gbmu", env)
             done = [int(r["timesteps"]) for r in read_eval_rows(run_dir / "eval.csv")]
             self.next = max(done) + cfg.eval_every if done else self.num_timesteps
 
