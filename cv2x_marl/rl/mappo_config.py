@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cv2x_marl.checks import as_real, is_int
+from cv2x_marl.checks import is_int
 from cv2x_marl.rl.errors import TrainError
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
@@ -88,21 +88,9 @@ class MappoSettings:
     encoder_units: int = 64
 
     def __post_init__(self) -> None:
-        reals = {
-            "learning_rate": (lambda v: v > 0, "a number > 0"),
-            "gamma": (lambda v: 0 < v <= 1, "a number in (0, 1]"),
-            "gae_lambda": (lambda v: 0 <= v <= 1, "a number in [0, 1]"),
-            "clip_range": (lambda v: v > 0, "a number > 0"),
-            "ent_coef": (lambda v: v >= 0, "a number >= 0"),
-            "vf_coef": (lambda v: v >= 0, "a number >= 0"),
-            "max_grad_norm": (lambda v: v > 0, "a number > 0"),
-            "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]"),
-        }
-        for name, (ok, allowed) in reals.items():
-            value = as_real(getattr(self, name))
-            if value is None or not ok(value):
-                raise TrainError(f"mappo.{name} must be {allowed}, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, value)
+        from cv2x_marl.rl.train_config import PPO_REALS, check_reals
+
+        check_reals(self, "mappo", {**PPO_REALS, "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]")})
         for name in ("n_epochs", "minibatch_steps", "encoder_units"):
             object.__setattr__(self, name, _count(f"mappo.{name}", getattr(self, name)))
         if self.encoder_units > MAX_UNITS:
@@ -194,28 +182,10 @@ def load_mappo_config(path: Path | None, env_id: str | None = None, copies: int 
     Raises:
         TrainError: unknown keys (named, with the allowed ones) or values out of range.
     """
-    from cv2x_marl.yamlcore import load_mapping
+    from cv2x_marl.rl.train_config import read_sections, with_cli_values
 
-    data = {} if path is None else load_mapping(path, "training config", TrainError)
-    for key in ("seed", "timesteps"):
-        data.pop(key, None)
-    known = {f.name for f in dataclasses.fields(MappoConfig)}
-    bad = sorted(set(data) - known)
-    if bad:
-        raise TrainError(f"unknown MAPPO config key(s) {bad}; keys: {', '.join(sorted(known))}")
-    raw = data.pop("mappo", {}) or {}
-    if not isinstance(raw, dict):
-        raise TrainError(f"train.mappo must be a mapping of MAPPO settings, got {raw!r}")
-    settings_known = {f.name for f in dataclasses.fields(MappoSettings)}
-    bad = sorted(set(raw) - settings_known)
-    if bad:
-        raise TrainError(f"unknown mappo key(s) {bad}; keys: {', '.join(sorted(settings_known))}")
-    env = data.pop("env", {}) or {}
-    if not isinstance(env, dict):
-        raise TrainError(f"train.env must be a mapping of env arguments, got {env!r}")
+    data, raw, env = read_sections(
+        path, ("seed", "timesteps"), MappoConfig, "MAPPO config", "mappo", MappoSettings, "MAPPO"
+    )
     cfg = MappoConfig(**{**data, "env": {**MappoConfig().env, **env}, "mappo": MappoSettings(**raw)})
-    if env_id is not None:
-        cfg = dataclasses.replace(cfg, env_id=env_id)
-    if copies is not None:
-        cfg = dataclasses.replace(cfg, copies=copies)
-    return cfg
+    return with_cli_values(cfg, env_id, copies)

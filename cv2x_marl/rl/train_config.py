@@ -27,6 +27,29 @@ _COPY_OVERHEAD_BYTES = 100_000
 ENCODERS = ("mlp", "deepsets", "attention")
 
 
+#: the real-valued PPO settings PPO and MAPPO share: name -> (test, allowed values as the error says them)
+PPO_REALS: dict[str, tuple[Any, str]] = {
+    "learning_rate": (lambda v: v > 0, "a number > 0"),
+    "gamma": (lambda v: 0 < v <= 1, "a number in (0, 1]"),
+    "gae_lambda": (lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+    "clip_range": (lambda v: v > 0, "a number > 0"),
+    "ent_coef": (lambda v: v >= 0, "a number >= 0"),
+    "vf_coef": (lambda v: v >= 0, "a number >= 0"),
+    "max_grad_norm": (lambda v: v > 0, "a number > 0"),
+}
+
+
+def check_reals(obj: Any, section: str, rules: dict[str, tuple[Any, str]]) -> None:
+    """Check and set the real-valued fields ``rules`` names on the frozen dataclass ``obj`` (a numeric string,
+    which YAML 1.1 makes of ``3e-4``, becomes a number); a bad one raises :class:`TrainError` naming
+    ``section.name`` and the allowed values."""
+    for name, (ok, allowed) in rules.items():
+        value = as_real(getattr(obj, name))
+        if value is None or not ok(value):
+            raise TrainError(f"{section}.{name} must be {allowed}, got {getattr(obj, name)!r}")
+        object.__setattr__(obj, name, value)
+
+
 @dataclass(frozen=True)
 class PpoConfig:
     """PPO hyperparameters (stable-baselines3 names)."""
@@ -56,21 +79,7 @@ class PpoConfig:
 
     def __post_init__(self) -> None:
         """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
-        reals = {
-            "learning_rate": (lambda v: v > 0, "a number > 0"),
-            "gamma": (lambda v: 0 < v <= 1, "a number in (0, 1]"),
-            "gae_lambda": (lambda v: 0 <= v <= 1, "a number in [0, 1]"),
-            "clip_range": (lambda v: v > 0, "a number > 0"),
-            "ent_coef": (lambda v: v >= 0, "a number >= 0"),
-            "vf_coef": (lambda v: v >= 0, "a number >= 0"),
-            "max_grad_norm": (lambda v: v > 0, "a number > 0"),
-            "log_std_init": (lambda v: True, "a finite number"),
-        }
-        for name, (ok, allowed) in reals.items():
-            value = as_real(getattr(self, name))
-            if value is None or not ok(value):
-                raise TrainError(f"ppo.{name} must be {allowed}, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, value)
+        check_reals(self, "ppo", {**PPO_REALS, "log_std_init": (lambda v: True, "a finite number")})
         for name in ("n_steps", "batch_size", "n_epochs"):
             object.__setattr__(self, name, _check_count(f"ppo.{name}", getattr(self, name)))
         if self.batch_size < 2:  # SB3 normalises the advantages over each mini-batch
@@ -210,31 +219,54 @@ def load_train_config(path: Path | None, env_id: str | None = None, copies: int 
     folder's ``train_config.json`` is a valid file: its ``seed`` and ``timesteps`` (the run's, see
     :func:`run_settings`) are not part of the configuration and are skipped here.
     """
+    data, ppo_data, env_data = read_sections(path, RUN_KEYS, TrainConfig, "training config", "ppo", PpoConfig, "PPO")
+    if "net_arch" in ppo_data and isinstance(ppo_data["net_arch"], list | tuple):
+        ppo_data["net_arch"] = tuple(ppo_data["net_arch"])
+    cfg = TrainConfig(**{**data, "env": {**TrainConfig().env, **env_data}, "ppo": PpoConfig(**ppo_data)})
+    return with_cli_values(cfg, env_id, copies)
+
+
+def read_sections(
+    path: Path | None,
+    skip: tuple[str, ...],
+    top: type,
+    kind: str,
+    section: str,
+    section_type: type,
+    section_label: str,
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """A training file (YAML / JSON; none: empty) split into its top-level values, its ``section`` mapping
+    (``ppo`` / ``mappo``) and its ``env`` mapping, every key checked against the fields of the dataclasses
+    ``top`` and ``section_type`` (unknown ones named with the allowed ones); ``skip``: run keys left out.
+
+    Raises:
+        TrainError: an unknown key, or a ``section`` / ``env`` that is not a mapping.
+    """
     from cv2x_marl.yamlcore import load_mapping
 
     data = {} if path is None else load_mapping(path, "training config", TrainError)
-    for key in RUN_KEYS:
+    for key in skip:
         data.pop(key, None)
-    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    known = {f.name for f in dataclasses.fields(top)}
     bad = sorted(set(data) - known)
     if bad:
-        raise TrainError(f"unknown training config key(s) {bad}; keys: {', '.join(sorted(known))}")
-    ppo_raw = data.pop("ppo", {}) or {}
-    if not isinstance(ppo_raw, dict):
-        raise TrainError(f"train.ppo must be a mapping of PPO settings, got {ppo_raw!r}")
-    ppo_data = dict(ppo_raw)
-    ppo_known = {f.name for f in dataclasses.fields(PpoConfig)}
-    bad = sorted(set(ppo_data) - ppo_known)
+        raise TrainError(f"unknown {kind} key(s) {bad}; keys: {', '.join(sorted(known))}")
+    raw = data.pop(section, {}) or {}
+    if not isinstance(raw, dict):
+        raise TrainError(f"train.{section} must be a mapping of {section_label} settings, got {raw!r}")
+    section_known = {f.name for f in dataclasses.fields(section_type)}
+    bad = sorted(set(raw) - section_known)
     if bad:
-        raise TrainError(f"unknown ppo key(s) {bad}; keys: {', '.join(sorted(ppo_known))}")
-    if "net_arch" in ppo_data and isinstance(ppo_data["net_arch"], list | tuple):
-        ppo_data["net_arch"] = tuple(ppo_data["net_arch"])
-    defaults = TrainConfig()
-    env_data = data.pop("env", {}) or {}
-    if not isinstance(env_data, dict):
-        raise TrainError(f"train.env must be a mapping of env arguments, got {env_data!r}")
-    env = {**defaults.env, **env_data}
-    cfg = TrainConfig(**{**data, "env": env, "ppo": PpoConfig(**ppo_data)})
+        raise TrainError(f"unknown {section} key(s) {bad}; keys: {', '.join(sorted(section_known))}")
+    env = data.pop("env", {}) or {}
+    if not isinstance(env, dict):
+        raise TrainError(f"train.env must be a mapping of env arguments, got {env!r}")
+    return data, dict(raw), env
+
+
+def with_cli_values(cfg: Any, env_id: str | None, copies: int | None) -> Any:
+    """``cfg`` (a frozen dataclass with ``env_id`` and ``copies``) with the CLI's ``--env`` / ``--copies`` over the
+    file's."""
     if env_id is not None:
         cfg = dataclasses.replace(cfg, env_id=env_id)
     if copies is not None:
