@@ -98,10 +98,32 @@ def pair_field_db(
         phase: [W] the pair's phases (rad).
         g0: ``G`` at the start (the pair's :attr:`ShadowField.g0`).
     """
+    w = phase.shape[0]
+    return pair_field_scratch_db(
+        lo_dx, lo_dy, hi_dx, hi_dy, s0_db, sigma_db, decorrelation_m, k_lo, k_hi, phase, g0, np.empty(w), np.empty(w)
+    )
+
+
+@njit(cache=True)
+def pair_field_scratch_db(
+    lo_dx: float,
+    lo_dy: float,
+    hi_dx: float,
+    hi_dy: float,
+    s0_db: float,
+    sigma_db: float,
+    decorrelation_m: float,
+    k_lo: FloatArray,
+    k_hi: FloatArray,
+    phase: FloatArray,
+    g0: float,
+    args: FloatArray,
+    cosines: FloatArray,
+) -> float:
+    """:func:`pair_field_db` with the caller's scratch ``args``, ``cosines`` [W] (two arrays: in place, the
+    cosine pass would not vectorise), so a loop over pairs allocates once."""
     if lo_dx == 0.0 and lo_dy == 0.0 and hi_dx == 0.0 and hi_dy == 0.0:
         return s0_db
-    args = np.empty(phase.shape[0])
-    cosines = np.empty(phase.shape[0])  # not in place: an aliased output keeps the pass from vectorising
     wave_args_into(lo_dx, lo_dy, hi_dx, hi_dy, k_lo, k_hi, phase, args)
     cos_into(args, cosines)
     return pair_value_db(lo_dx, lo_dy, hi_dx, hi_dy, s0_db, sigma_db, decorrelation_m, cosines, g0)
@@ -123,13 +145,15 @@ def field_shadow_db(
     ``a < b`` computed, mirrored; 0 on the diagonal). Arrays as :class:`ShadowField`'s."""
     n = positions_m.shape[0]
     out = np.zeros((n, n))
+    args = np.empty(phase.shape[-1])
+    cosines = np.empty(phase.shape[-1])
     for a in range(n):
         ax = positions_m[a, 0] - start_m[a, 0]
         ay = positions_m[a, 1] - start_m[a, 1]
         for b in range(a + 1, n):
-            s = pair_field_db(
+            s = pair_field_scratch_db(
                 ax, ay, positions_m[b, 0] - start_m[b, 0], positions_m[b, 1] - start_m[b, 1], shadow0_db[a, b],
-                sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b], phase[a, b], g0[a, b],
+                sigma_db[a, b], decorrelation_m, k_lo[a, b], k_hi[a, b], phase[a, b], g0[a, b], args, cosines,
             )  # fmt: skip
             out[a, b] = s
             out[b, a] = s
