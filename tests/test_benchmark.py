@@ -437,3 +437,50 @@ def test_offset_policies_are_refused_where_actions_are_speed_commands() -> None:
             registry.make_policy(name, speed_env)  # type: ignore[arg-type]
     assert registry.make_policy("static", speed_env).name == "static"  # type: ignore[arg-type]
     assert set(registry.OFFSET_POLICIES) | {"static", "random"} == set(registry.SCRIPTED)
+
+
+def test_rows_from_an_earlier_run_are_taken_not_run_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--rows-from``: the scripted and ceiling rows of an earlier benchmark.csv are taken as they are (their
+    jobs do not run) and the table equals the earlier run's; a method it lacks runs; a foreign file is refused
+    before the folder is made."""
+    table = {"singlemover": stand_in_tasks()["singlemover"]}
+    kw: dict[str, Any] = {"episodes": 2, "progress": False, "task_table": table}
+    first = benchmark.run_benchmark(tmp_path / "a", methods=["static"], **kw)
+    ran: list[str] = []
+    real = benchmark.run_job
+
+    def spy(job: dict[str, Any]) -> list[dict[str, Any]]:
+        ran.append(job["method"])
+        return real(job)
+
+    monkeypatch.setattr(benchmark, "run_job", spy)
+    again = benchmark.run_benchmark(
+        tmp_path / "b", methods=["static", "gbmu"], rows_from=tmp_path / "a" / "benchmark.csv", **kw
+    )
+    assert ran == ["gbmu"]  # static and the ceiling were taken
+    for method in ("static", "optimum"):
+        assert again["tasks"]["singlemover"]["methods"][method] == first["tasks"]["singlemover"]["methods"][method]
+    rows_a = _read_csv(tmp_path / "a" / "benchmark.csv")
+    rows_b = [r for r in _read_csv(tmp_path / "b" / "benchmark.csv") if r["method"] != "gbmu"]
+    assert rows_b == rows_a
+    assert json.loads((tmp_path / "b" / "run.json").read_text())["parameters"]["reused_jobs"] == 2
+    (tmp_path / "bad.csv").write_text("task,method\nsinglemover,static\n")
+    with pytest.raises(ValueError, match=r"--rows-from .*bad.csv: not a benchmark.csv"):
+        benchmark.run_benchmark(tmp_path / "c", rows_from=tmp_path / "bad.csv", **kw)
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_learned_method_runs_on_the_env_it_was_trained_on(tmp_path: Path) -> None:
+    """A model trained on a variant of the task (Traffic-v1 for traffic) runs there; one trained on another
+    task's env, or runs of one method trained on different envs, are refused naming the allowed ids."""
+    for name, env_id in (("v1", "cv2x/Traffic-v1"), ("v0", "cv2x/Traffic-v0"), ("coop", "cv2x/Cooperative-v0")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "model.zip").write_bytes(b"")
+        (tmp_path / name / "train_config.json").write_text(json.dumps({"env_id": env_id, "env": {}}))
+    traffic = tasks.TASKS["traffic"]
+    assert benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/v1/model.zip"]) == "cv2x/Traffic-v1"
+    assert benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/v0/model.zip"]) == "cv2x/Traffic-v0"
+    with pytest.raises(ValueError, match=r"trained on cv2x/Cooperative-v0.*allowed: cv2x/Traffic-v0, cv2x/Traffic-v1"):
+        benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/coop/model.zip"])
+    with pytest.raises(ValueError, match="its runs were trained on different envs"):
+        benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/v0/model.zip", f"ppo:{tmp_path}/v1/model.zip"])

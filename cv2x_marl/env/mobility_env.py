@@ -47,6 +47,7 @@ from cv2x_marl.env.planning import (
     reachable_set,
     sensing_plan,
 )
+from cv2x_marl.env.team_search import difference_rewards
 from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
@@ -574,6 +575,10 @@ class MobilityEnv(ParallelEnv):
     def _rewards(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.reward_kind == "individual":
             return u
+        if self.reward_kind == "difference":
+            return difference_rewards(
+                self.links, self.positions_m, self.start_m, self.mover_mask, self.p_min, self.normalise_reward
+            )
         team = np.full_like(u, (u if self.options.team_objective == "utility" else self.prr).mean())
         if self.reward_kind == "team":
             return team

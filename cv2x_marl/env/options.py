@@ -35,7 +35,7 @@ from cv2x_marl.env.observation import VERSIONS
 #: ``snapshot``: positions and SPS resources of a stage-1 snapshot; ``traffic``: vehicles drive
 MODES = ("snapshot", "traffic")
 #: the reward combination of the agents' utilities
-REWARDS = ("individual", "team", "mixed")
+REWARDS = ("individual", "team", "mixed", "difference")
 #: ``utility``: the reward of a step is the utility after it (v0); ``improvement``: its change over
 #: the step, a potential-based shaping whose episode sum is final minus start utility
 REWARD_FORMS = ("utility", "improvement")
@@ -208,7 +208,8 @@ class EnvOptions:
     reward: str = _option(
         "individual",
         "`individual` (own eq. 12 utility), `team` (mean over agents), `mixed` (`local_ratio` own + "
-        "`1 - local_ratio` team)",
+        "`1 - local_ratio` team), `difference` (the team objective minus its value with the agent back at its start: "
+        "its own contribution to the team; snapshot mode, team_objective utility)",
         choices=REWARDS,
     )
     local_ratio: float = _option(0.5, "weight of the own utility in `mixed`", lo=0.0, hi=1.0)
@@ -436,6 +437,8 @@ class EnvOptions:
                 self.observation,
                 "0 | 1 | 2 | 3 (4: traffic mode with traffic_action speed and drive_observation true, cv2x/Traffic-v1)",
             )
+        if self.reward == "difference" and (self.mode != "snapshot" or self.team_objective != "utility"):
+            refuse("reward", self.reward, " | ".join(REWARDS) + " (difference: snapshot mode, team_objective utility)")
         if self.shadow_field and self.mode != "snapshot":
             refuse("shadow_field", self.shadow_field, "false unless mode is snapshot")
         if self.settle_steps >= self.max_cycles:
@@ -467,6 +470,13 @@ class EnvOptions:
                 self.observation,
                 "0 | 1 when channel.pathloss is not winner_b1 or truth_los is geometry (the v2 sensing estimate "
                 "runs on the compiled WINNER+ B1 kernels)",
+            )
+        if self.reward == "difference" and (cfg.channel.pathloss != "winner_b1" or self.truth_los == "geometry"):
+            refuse(
+                "reward",
+                self.reward,
+                "individual | team | mixed when channel.pathloss is not winner_b1 or truth_los is geometry (the "
+                "difference reward runs on the compiled WINNER+ B1 kernels)",
             )
         n = cfg.n_vehicles
         k = self.n_neighbours

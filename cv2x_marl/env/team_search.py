@@ -118,6 +118,44 @@ class TeamObjective:
         )  # fmt: skip
 
 
+def difference_rewards(
+    links: SnapshotLinks,
+    positions_m: FloatArray,
+    start_m: FloatArray,
+    movers: NDArray[np.bool_],
+    p_min: float,
+    normalise: bool = True,
+) -> FloatArray:
+    """[N] each vehicle's difference reward: its marginal contribution to the team objective,
+    ``D_i = J(x) - J(x with vehicle i back at its start)`` (Wolpert & Tumer, "Optimal payoff functions for
+    members of collectives", 2001, with the stay-put action as the counterfactual), the env's
+    ``reward="difference"``.
+
+    ``J(x) - D_i`` does not depend on where ``i`` is, so ``D_i`` moves with vehicle ``i``'s position as ``J``
+    does (the same gradient for ``i``) while the other vehicles' moves add no noise of their own to it (they
+    change ``D_i`` only through their interaction with ``i``). With the ``improvement`` reward form the
+    rewards of an episode sum to ``D_i`` at its end, ``D_i`` being 0 at the start.
+
+    Args:
+        links: the snapshot's links (compiled kernels, as :class:`TeamObjective`).
+        positions_m: [N, 2] where the vehicles are (m).
+        start_m: [N, 2] where they started the episode (m).
+        movers: [N] which vehicles move (the others' ``D`` is 0).
+        p_min: clip of P inside eq. 12's log.
+        normalise: the per-receiver normalisation (``normalise_reward``).
+
+    Returns:
+        [N] ``D`` (the units of ``J``: eq. 12 utility per target receiver, averaged over the N vehicles).
+    """
+    objective = TeamObjective(links, p_min, normalise)
+    j_now = objective.set_positions(positions_m)
+    out = np.zeros(links.n)
+    moved = np.flatnonzero(movers & np.any(np.asarray(positions_m) != start_m, axis=1))
+    for i in moved:  # one incremental evaluation per moved vehicle (its links only)
+        out[i] = j_now - objective.move_values(int(i), start_m[i][None, :])[0]
+    return out
+
+
 @dataclass(frozen=True)
 class TeamSearchResult:
     """What :func:`team_search` found.

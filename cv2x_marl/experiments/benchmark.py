@@ -134,10 +134,12 @@ def plan_jobs(
         for m in wanted:
             make_policy(m, env)  # an unknown name or too large a search: refused here
         runs = {m: [m] for m in wanted}
+        env_ids = dict.fromkeys(wanted, task.env_id)
         for label, specs in models.get(task.name, {}).items():
             if label in runs:
                 raise ValueError(f"--model {task.name}/{label}: the label names a scripted method; choose another")
             runs[label] = list(specs)
+            env_ids[label] = model_env_id(task, label, specs)
         size = chunk or len(seeds)
         for method, specs in runs.items():
             for run, spec in enumerate(specs):
@@ -145,7 +147,7 @@ def plan_jobs(
                     jobs.append(
                         {
                             "task": task.name,
-                            "env_id": task.env_id,
+                            "env_id": env_ids[method],
                             "options": dict(task.options),
                             "method": method,
                             "run": run,
@@ -155,6 +157,69 @@ def plan_jobs(
                         }
                     )
     return jobs
+
+
+def model_env_id(task: Task, label: str, specs: Sequence[str]) -> str:
+    """The env id a learned method runs on in ``task``: the one its models were trained on (``train_config.json``
+    beside them) when that is the task's id or a variant of the task (:data:`cv2x_marl.env.tasks.VARIANTS`: the
+    same episodes with another observation), the task's id for a bare model file; another env is refused, as are
+    training runs of one method trained on different envs."""
+    from cv2x_marl.env.tasks import VARIANTS
+    from cv2x_marl.experiments.evaluate import trained_env_options
+    from cv2x_marl.policies.registry import PPO_PREFIX
+
+    ids = {trained_env_options(Path(s[len(PPO_PREFIX) :]))[0] or task.env_id for s in specs}
+    if len(ids) > 1:
+        raise ValueError(f"--model {task.name}/{label}: its runs were trained on different envs: {sorted(ids)}")
+    env_id = ids.pop()
+    allowed = [task.env_id, *(v for v, t in VARIANTS.items() if t == task.name)]
+    if env_id not in allowed:
+        raise ValueError(
+            f"--model {task.name}/{label}: trained on {env_id}, not on task {task.name}'s env; allowed: "
+            f"{', '.join(allowed)}"
+        )
+    return env_id
+
+
+def read_rows(path: Path) -> dict[tuple[str, str, str, int], dict[str, Any]]:
+    """The episode rows of an earlier ``benchmark.csv`` (``--rows-from``), keyed by (task, env id, method,
+    seed), for scripted methods and ceilings only (run 0; a learned model's file may have changed since)."""
+    from cv2x_marl.policies.registry import PPO_PREFIX
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"--rows-from: no file {path}")
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        if tuple(reader.fieldnames or ()) != CSV_FIELDS:
+            raise ValueError(f"--rows-from {path}: not a benchmark.csv; its columns must be {', '.join(CSV_FIELDS)}")
+        out = {}
+        for r in reader:
+            if r["policy"].startswith(PPO_PREFIX) or r["run"] != "0":
+                continue
+            row: dict[str, Any] = dict(r)
+            for k in ("run", "episode", "seed"):
+                row[k] = int(r[k])
+            for k in CSV_FIELDS[7:]:
+                row[k] = float(r[k])
+            out[(r["task"], r["env_id"], r["method"], row["seed"])] = row
+    return out
+
+
+def reuse_rows(
+    jobs: list[dict[str, Any]], earlier: Mapping[tuple[str, str, str, int], dict[str, Any]]
+) -> tuple[list[dict[str, Any]], dict[int, list[dict[str, Any]]]]:
+    """Split ``jobs`` into those still to run and, per job index, the rows taken from ``earlier`` (a scripted
+    method or ceiling with a row for every one of its seeds; the episode numbering is the job's)."""
+    todo, reused = [], {}
+    for i, job in enumerate(jobs):
+        keys = [(job["task"], job["env_id"], job["method"], s) for s in job["seeds"]]
+        if job["policy"] == job["method"] and all(k in earlier for k in keys):
+            first = job.get("first_episode", 0)
+            reused[i] = [{**earlier[k], "episode": first + e} for e, k in enumerate(keys)]
+        else:
+            todo.append(job)
+    return todo, reused
 
 
 def run_job(job: dict[str, Any]) -> list[dict[str, Any]]:
@@ -332,6 +397,7 @@ def run_benchmark(
     task_table: Mapping[str, Task] | None = None,
     backend: str = "ray",
     episodes_per_job: int | None = None,
+    rows_from: Path | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark into the run folder ``out_dir``; returns ``summary.json``'s content.
 
@@ -347,6 +413,9 @@ def run_benchmark(
         episodes_per_job: held-out episodes per job (None: :data:`EPISODES_PER_JOB` when the jobs run in
             parallel, every episode of a (task, method, run) in one job otherwise). The rows do not depend
             on it.
+        rows_from: an earlier ``benchmark.csv`` whose rows of scripted methods and ceilings are taken for the
+            same (task, env id, method, seed) instead of running them again (:func:`read_rows`); what it lacks
+            runs. Its rows are the code's that wrote them: the run's ``run.json`` records the file.
     """
     from cv2x_marl.env import tasks as task_module
     from cv2x_marl.io import atomic_write, write_json
@@ -362,16 +431,22 @@ def run_benchmark(
     parallel = workers > 1 or address is not None
     chunk = episodes_per_job if episodes_per_job is not None else (EPISODES_PER_JOB if parallel else None)
     jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes, chunk)
-    params = {
+    earlier = read_rows(rows_from) if rows_from is not None else {}
+    todo, reused = reuse_rows(jobs, earlier)
+    params: dict[str, Any] = {
         "tasks": list(dict.fromkeys(j["task"] for j in jobs)),
         "methods": list(methods or []),
         "episodes": episodes,
+        "models": list(models),
+        "rows_from": None if rows_from is None else str(rows_from),
+        "reused_jobs": len(reused),
     }
-    params["models"] = list(models)
     inputs = [Path(j["policy"][4:]) for j in jobs if j["policy"].startswith("ppo:")]
+    inputs += [Path(rows_from)] if rows_from is not None else []
     with run_folder(out_dir, "benchmark", overwrite=overwrite, parameters=params, inputs=inputs):
         t0 = time.perf_counter()
-        rows = [r for part in _execute(jobs, workers, address, progress, backend) for r in part]
+        ran = iter(_execute(todo, workers, address, progress, backend))
+        rows = [r for i in range(len(jobs)) for r in (reused[i] if i in reused else next(ran))]
         summary = summarise(rows, table)
         summary["wall_s"] = time.perf_counter() - t0
         out = Path(out_dir)
@@ -416,6 +491,12 @@ def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overw
         default=None,
         help=f"held-out episodes per job (default: {EPISODES_PER_JOB} in parallel, all in one process)",
     )
+    p.add_argument(
+        "--rows-from",
+        type=Path,
+        default=None,
+        help="an earlier benchmark.csv: its scripted and ceiling rows are taken instead of run again",
+    )
     p.add_argument("--address", help="Ray cluster address (auto, ray://HOST:10001); default: a local Ray")
     p.add_argument("--overwrite", action="store_true", help=overwrite_help)
     p.add_argument("--json", action="store_true", help="print summary.json")
@@ -441,6 +522,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         not args.quiet,
         backend=args.backend,
         episodes_per_job=args.episodes_per_job,
+        rows_from=args.rows_from,
     )
     if args.json:
         sys.stdout.write(dumps_json(summary) + "\n")

@@ -188,6 +188,9 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
             "max_step_m",
             "max_drift_m",
             "roi",
+            "speed_command",
+            "sensing_window",
+            "rsrp_error_db",
         )
         return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
     except (ValueError, KeyError, TypeError) as exc:

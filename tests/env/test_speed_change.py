@@ -54,3 +54,18 @@ def test_static_holds_and_the_target_speed_policies_refuse_the_option() -> None:
             make_policy(name, par)
     with pytest.raises(ValueError, match="speed_command"):
         gym.make("cv2x/SingleMover-v3", speed_command="change")
+
+
+def test_a_trained_models_speed_command_is_rebuilt(tmp_path) -> None:
+    """``--policy ppo:PATH`` rebuilds the env with the model's ``speed_command`` (it shapes the actions: a
+    change-trained policy on target speeds would be judged on another task), not with its training-only options."""
+    import json
+
+    from cv2x_marl.experiments.evaluate import trained_env_options
+
+    env = {"max_cycles": 100, "speed_command": "change", "start_pool": 64, "reward": "team", "sensing_window": 5}
+    (tmp_path / "train_config.json").write_text(json.dumps({"env_id": "cv2x/Traffic-v1", "env": env}))
+    assert trained_env_options(tmp_path / "model.zip") == (
+        "cv2x/Traffic-v1",
+        {"max_cycles": 100, "speed_command": "change", "sensing_window": 5},
+    )
