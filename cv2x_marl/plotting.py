@@ -230,12 +230,14 @@ def plot_method_comparison(table: list[dict[str, Any]], path: str | Path, title:
 
 
 def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | Path, title: str) -> Path:
-    """PPO's evaluation utility gain during training (one line per seed) against GBMU's."""
+    """The learner's evaluation utility gain during training (one line per seed) against GBMU's: the rows of
+    each run's ``eval.csv`` (PPO's ``ppo_mean_utility_gain`` or MAPPO's ``mappo_mean_utility_gain``)."""
     fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
     gbmu = None
     for name, rows in sorted(curves.items()):
         t = [r["timesteps"] for r in rows]
-        ax.plot(t, [100 * r["ppo_mean_utility_gain"] for r in rows], "-o", ms=3, lw=1.2, label=name)
+        key = "ppo_mean_utility_gain" if "ppo_mean_utility_gain" in rows[0] else "mappo_mean_utility_gain"
+        ax.plot(t, [100 * r[key] for r in rows], "-o", ms=3, lw=1.2, label=name)
         gbmu = rows[0]["gbmu_mean_utility_gain"]
     if gbmu is not None:
         ax.axhline(100 * gbmu, color="k", ls="--", lw=1.2, label="GBMU (same evaluation episodes)")

@@ -1,0 +1,50 @@
+"""Learning curves of the shipped models of issue 28: one figure per task from the ``eval.csv`` of each
+``agents/models/<task>_seed<k>/`` (the run's own evaluations during training: the learner, deterministic, and
+GBMU on the same ``eval_episodes`` episodes from ``eval_seed``, outside the held-out lists).
+
+    python benchmarks/learning_curves.py [--models agents/models] [--out docs/benchmark/learners]
+
+Writes ``learning-<task>.png`` for every task with shipped models.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+from cv2x_marl import plotting
+
+#: the shipped models' folder prefixes, per task
+PREFIXES = {"singlemover": "singlemover-v3", "cooperative": "cooperative", "traffic": "traffic"}
+
+
+def curves_of(models: Path, prefix: str) -> tuple[dict[str, list[dict[str, float]]], str]:
+    """The rows of every ``<prefix>_seed<k>/eval.csv`` (float values) and the env id the runs trained on."""
+    curves, env_id = {}, ""
+    for run in sorted(models.glob(f"{prefix}_seed*")):
+        with (run / "eval.csv").open(newline="") as fh:
+            curves[run.name] = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+        env_id = json.loads((run / "train_config.json").read_text())["env_id"]
+    return curves, env_id
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--models", type=Path, default=Path("agents/models"))
+    p.add_argument("--out", type=Path, default=Path("docs/benchmark/learners"))
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for task, prefix in PREFIXES.items():
+        curves, env_id = curves_of(args.models, prefix)
+        if curves:
+            path = plotting.plot_learning_curves(
+                curves, args.out / f"learning-{task}.png", f"{task}: training on {env_id}"
+            )
+            print(f"wrote {path} ({len(curves)} runs)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
