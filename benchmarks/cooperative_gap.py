@@ -168,7 +168,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("docs/benchmark/cooperative_gap"))
     args = p.parse_args(argv)
     replan = tuple(int(x) for x in args.replan_every.split(","))
-    kinds = tuple(k for k in ("selfish", "team") if k in args.gradual.split(","))
+    asked = [k.strip() for k in args.gradual.split(",") if k.strip()]
+    if not asked or set(asked) - {"selfish", "team"}:
+        raise SystemExit(f"--gradual {args.gradual!r}: allowed: selfish, team, or both (comma-separated)")
+    kinds = tuple(k for k in ("selfish", "team") if k in asked)
     if not replan or min(replan) < 1 or args.workers < 1 or not 1 <= args.episodes <= 48:
         raise SystemExit("--replan-every: integers >= 1; --workers >= 1; --episodes in 1 .. 48")
     seeds = [int(s) for s in TASKS["cooperative"].heldout_seeds[: args.episodes]]

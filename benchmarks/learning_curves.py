@@ -22,12 +22,12 @@ PREFIXES = {"singlemover": "singlemover-v3", "cooperative": "cooperative", "traf
 
 def curves_of(models: Path, prefix: str) -> tuple[dict[str, list[dict[str, float]]], str]:
     """The rows of every ``<prefix>_seed<k>/eval.csv`` (float values) and the env id the runs trained on."""
-    curves, env_id = {}, ""
+    curves, env_ids = {}, set()
     for run in sorted(models.glob(f"{prefix}_seed*")):
         with (run / "eval.csv").open(newline="") as fh:
             curves[run.name] = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
-        env_id = json.loads((run / "train_config.json").read_text())["env_id"]
-    return curves, env_id
+        env_ids.add(json.loads((run / "train_config.json").read_text())["env_id"])
+    return curves, ", ".join(sorted(env_ids))
 
 
 def main(argv: list[str] | None = None) -> int:

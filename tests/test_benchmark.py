@@ -463,7 +463,26 @@ def test_rows_from_an_earlier_run_are_taken_not_run_again(tmp_path: Path, monkey
     rows_a = _read_csv(tmp_path / "a" / "benchmark.csv")
     rows_b = [r for r in _read_csv(tmp_path / "b" / "benchmark.csv") if r["method"] != "gbmu"]
     assert rows_b == rows_a
-    assert json.loads((tmp_path / "b" / "run.json").read_text())["parameters"]["reused_jobs"] == 2
+    params = json.loads((tmp_path / "b" / "run.json").read_text())["parameters"]
+    assert params["reused_jobs"] == 2 and params["rows_from"]["sha256"] == benchmark.sha256_of(
+        tmp_path / "a" / "benchmark.csv"
+    )
+    # chunked jobs renumber their reused rows as one job would; a seed the earlier run lacks makes its job run
+    ran.clear()
+    chunked = benchmark.run_benchmark(
+        tmp_path / "d", methods=["static"], rows_from=tmp_path / "a" / "benchmark.csv", episodes_per_job=1, **kw
+    )
+    assert ran == [] and chunked["tasks"] == first["tasks"]
+    assert _read_csv(tmp_path / "d" / "benchmark.csv") == rows_a
+    more = benchmark.run_benchmark(
+        tmp_path / "e",
+        methods=["static"],
+        rows_from=tmp_path / "a" / "benchmark.csv",
+        episodes_per_job=2,
+        **{**kw, "episodes": 3},
+    )
+    assert ran == ["static", "optimum"]  # episode 2 of each: not in the earlier run
+    assert more["tasks"]["singlemover"]["episodes"] == 3
     (tmp_path / "bad.csv").write_text("task,method\nsinglemover,static\n")
     with pytest.raises(ValueError, match=r"--rows-from .*bad.csv: not a benchmark.csv"):
         benchmark.run_benchmark(tmp_path / "c", rows_from=tmp_path / "bad.csv", **kw)
@@ -484,3 +503,24 @@ def test_a_learned_method_runs_on_the_env_it_was_trained_on(tmp_path: Path) -> N
         benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/coop/model.zip"])
     with pytest.raises(ValueError, match="its runs were trained on different envs"):
         benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/v0/model.zip", f"ppo:{tmp_path}/v1/model.zip"])
+    (tmp_path / "noisy").mkdir()
+    (tmp_path / "noisy" / "model.zip").write_bytes(b"")
+    cfg = {"env_id": "cv2x/Traffic-v1", "env": {"rsrp_error_db": 0.0}}
+    (tmp_path / "noisy" / "train_config.json").write_text(json.dumps(cfg))
+    with pytest.raises(
+        ValueError, match=r"trained with rsrp_error_db=0.0; a task measures with the env's rsrp_error_db=3.0"
+    ):
+        benchmark.model_env_id(traffic, "ppo", [f"ppo:{tmp_path}/noisy/model.zip"])
+
+
+def test_a_learned_label_may_not_name_a_scripted_method(tmp_path: Path) -> None:
+    (tmp_path / "m.zip").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"--model singlemover/gbmu: the label names a scripted method.*best-response"):
+        benchmark.run_benchmark(
+            tmp_path / "out",
+            methods=["static"],
+            models=[f"singlemover/gbmu=ppo:{tmp_path}/m.zip"],
+            progress=False,
+            task_table=stand_in_tasks(),
+        )
+    assert not (tmp_path / "out").exists()

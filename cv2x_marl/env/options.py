@@ -438,7 +438,12 @@ class EnvOptions:
                 "0 | 1 | 2 | 3 (4: traffic mode with traffic_action speed and drive_observation true, cv2x/Traffic-v1)",
             )
         if self.reward == "difference" and (self.mode != "snapshot" or self.team_objective != "utility"):
-            refuse("reward", self.reward, " | ".join(REWARDS) + " (difference: snapshot mode, team_objective utility)")
+            refuse(
+                "reward",
+                self.reward,
+                " | ".join(REWARDS) + f" (difference: snapshot mode with team_objective utility; here mode "
+                f"{self.mode}, team_objective {self.team_objective})",
+            )
         if self.shadow_field and self.mode != "snapshot":
             refuse("shadow_field", self.shadow_field, "false unless mode is snapshot")
         if self.settle_steps >= self.max_cycles:

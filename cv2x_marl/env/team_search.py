@@ -147,10 +147,12 @@ def difference_rewards(
     Returns:
         [N] ``D`` (the units of ``J``: eq. 12 utility per target receiver, averaged over the N vehicles).
     """
-    objective = TeamObjective(links, p_min, normalise)
-    j_now = objective.set_positions(positions_m)
     out = np.zeros(links.n)
     moved = np.flatnonzero(movers & np.any(np.asarray(positions_m) != start_m, axis=1))
+    if moved.size == 0:  # at the start (every reset): nobody has contributed anything
+        return out
+    objective = TeamObjective(links, p_min, normalise)
+    j_now = objective.set_positions(positions_m)
     for i in moved:  # one incremental evaluation per moved vehicle (its links only)
         out[i] = j_now - objective.move_values(int(i), start_m[i][None, :])[0]
     return out

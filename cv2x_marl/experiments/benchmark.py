@@ -52,6 +52,8 @@ CSV_FIELDS = (
     "ceiling_gain",
     "share_of_ceiling",
 )
+#: env options that set how a vehicle measures (observation noise): a task's are the env's defaults
+MEASUREMENT_OPTIONS = ("rsrp_error_db", "sensing_window")
 #: the default label of a learned model given without one
 LEARNED = "ppo"
 #: how jobs run when ``workers > 1``: Ray tasks (an embedded local Ray, or ``address``) or spawned processes
@@ -101,7 +103,7 @@ def plan_jobs(
     each task's env and policies are built once here)."""
     from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.env.tasks import get_task
-    from cv2x_marl.policies.registry import make_policy
+    from cv2x_marl.policies.registry import SCRIPTED, make_policy
 
     chosen = [get_task(n, tasks) for n in (names or list(tasks))]
     if len({t.name for t in chosen}) != len(chosen):
@@ -136,8 +138,11 @@ def plan_jobs(
         runs = {m: [m] for m in wanted}
         env_ids = dict.fromkeys(wanted, task.env_id)
         for label, specs in models.get(task.name, {}).items():
-            if label in runs:
-                raise ValueError(f"--model {task.name}/{label}: the label names a scripted method; choose another")
+            if label in runs or label in (*task.methods, task.ceiling, *SCRIPTED):
+                raise ValueError(
+                    f"--model {task.name}/{label}: the label names a scripted method; choose another (not one of "
+                    f"{', '.join(dict.fromkeys((*task.methods, task.ceiling, *SCRIPTED)))})"
+                )
             runs[label] = list(specs)
             env_ids[label] = model_env_id(task, label, specs)
         size = chunk or len(seeds)
@@ -163,7 +168,11 @@ def model_env_id(task: Task, label: str, specs: Sequence[str]) -> str:
     """The env id a learned method runs on in ``task``: the one its models were trained on (``train_config.json``
     beside them) when that is the task's id or a variant of the task (:data:`cv2x_marl.env.tasks.VARIANTS`: the
     same episodes with another observation), the task's id for a bare model file; another env is refused, as are
-    training runs of one method trained on different envs."""
+    training runs of one method trained on different envs and models trained with measurement options
+    (:data:`MEASUREMENT_OPTIONS`) other than the env's."""
+    import dataclasses
+
+    from cv2x_marl.env.options import EnvOptions
     from cv2x_marl.env.tasks import VARIANTS
     from cv2x_marl.experiments.evaluate import trained_env_options
     from cv2x_marl.policies.registry import PPO_PREFIX
@@ -172,6 +181,15 @@ def model_env_id(task: Task, label: str, specs: Sequence[str]) -> str:
     if len(ids) > 1:
         raise ValueError(f"--model {task.name}/{label}: its runs were trained on different envs: {sorted(ids)}")
     env_id = ids.pop()
+    defaults = {f.name: f.default for f in dataclasses.fields(EnvOptions)}
+    for s in specs:  # the task's measurements: a model trained with other noise is judged on the task's
+        options = trained_env_options(Path(s[len(PPO_PREFIX) :]))[1]
+        for key in MEASUREMENT_OPTIONS:
+            if key in options and options[key] != defaults[key]:
+                raise ValueError(
+                    f"--model {task.name}/{label}: {s} was trained with {key}={options[key]!r}; a task measures "
+                    f"with the env's {key}={defaults[key]!r} (evaluate it with cv2x-marl evaluate instead)"
+                )
     allowed = [task.env_id, *(v for v, t in VARIANTS.items() if t == task.name)]
     if env_id not in allowed:
         raise ValueError(
@@ -204,6 +222,13 @@ def read_rows(path: Path) -> dict[tuple[str, str, str, int], dict[str, Any]]:
                 row[k] = float(r[k])
             out[(r["task"], r["env_id"], r["method"], row["seed"])] = row
     return out
+
+
+def sha256_of(path: Path) -> str:
+    """The SHA-256 of a file (what ``--rows-from`` read: recorded in the run's ``run.json``)."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def reuse_rows(
@@ -313,7 +338,12 @@ def summarise(rows: list[dict[str, Any]], tasks: Mapping[str, Task]) -> dict[str
                 for k, g in grid.items():
                     g[r["run"], r["episode"]] = r[k]
             shares.setdefault(method, {})[name] = grid["share_of_ceiling"]
-            entry: dict[str, Any] = {"runs": runs, "episodes": episodes, "policy": sel[0]["policy"]}
+            entry: dict[str, Any] = {
+                "runs": runs,
+                "episodes": episodes,
+                "policy": sel[0]["policy"],
+                "env_id": sel[0]["env_id"],
+            }
             entry["iqm_utility_gain"], entry["ci95_utility_gain"] = interval(grid["utility_gain"])
             entry["iqm_share_of_ceiling"], entry["ci95_share_of_ceiling"] = interval(grid["share_of_ceiling"])
             entry["mean_utility_gain"] = float(np.nanmean(grid["utility_gain"]))
@@ -369,6 +399,13 @@ def table_markdown(summary: dict[str, Any]) -> str:
                 f"{_pct(m['iqm_share_of_ceiling'], '')} | {_ci(m['ci95_share_of_ceiling'], '')} | {m['mean_prr']:.4f} |"
             )
         lines.append("")
+        variant = [
+            f"`{method}` on `{m['env_id']}`"
+            for method, m in task["methods"].items()
+            if m.get("env_id", task["env_id"]) != task["env_id"]
+        ]
+        if variant:
+            lines += [f"On a variant of the task (the same episodes): {', '.join(variant)}.", ""]
     if summary.get("all_tasks"):
         lines += [
             "### All tasks (share of the ceiling, the tasks as strata)",
@@ -438,14 +475,14 @@ def run_benchmark(
         "methods": list(methods or []),
         "episodes": episodes,
         "models": list(models),
-        "rows_from": None if rows_from is None else str(rows_from),
+        "rows_from": None if rows_from is None else {"path": str(rows_from), "sha256": sha256_of(rows_from)},
         "reused_jobs": len(reused),
     }
     inputs = [Path(j["policy"][4:]) for j in jobs if j["policy"].startswith("ppo:")]
     inputs += [Path(rows_from)] if rows_from is not None else []
     with run_folder(out_dir, "benchmark", overwrite=overwrite, parameters=params, inputs=inputs):
         t0 = time.perf_counter()
-        ran = iter(_execute(todo, workers, address, progress, backend))
+        ran = iter(_execute(todo, workers, address, progress, backend) if todo else [])
         rows = [r for i in range(len(jobs)) for r in (reused[i] if i in reused else next(ran))]
         summary = summarise(rows, table)
         summary["wall_s"] = time.perf_counter() - t0

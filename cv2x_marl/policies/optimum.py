@@ -58,7 +58,7 @@ def best_response_targets(
 
 def uses_team_search(env: PlanningEnv) -> bool:
     """Whether :class:`OptimumPolicy` searches the team objective in ``env``: the reward is the team's
-    (``reward="team"``, or ``"difference"``: each vehicle's share of it) and every vehicle moves."""
+    (``reward="team"``, or ``"difference"``: each vehicle's marginal contribution to it) and every vehicle moves."""
     return getattr(env, "reward_kind", "individual") in ("team", "difference") and bool(np.all(env.mover_mask))
 
 

@@ -61,7 +61,13 @@ def test_only_movers_are_rewarded_and_the_positions_do_not_depend_on_the_reward(
     pos_diff, rewards = _episode(diff, seed=2, steps=4)
     np.testing.assert_array_equal(pos_team, pos_diff)
     still = np.setdiff1d(np.arange(diff.n), [0, 3, 5])
-    assert np.all(np.sum(rewards, axis=0)[still] == 0.0)
+    total = np.sum(rewards, axis=0)
+    assert np.all(total[still] == 0.0)
+    j = _numpy_j(diff, pos_diff)
+    for i in (0, 3, 5):  # each mover's contribution, the others (movers or not) where they are
+        back = np.where((np.arange(diff.n) == i)[:, None], diff.start_m, pos_diff)
+        assert abs(j - _numpy_j(diff, back)) > 1e-6
+        assert total[i] == pytest.approx(j - _numpy_j(diff, back), abs=1e-12)
     assert not uses_team_search(diff)  # not every vehicle moves
     assert uses_team_search(parallel_env_cooperative(reward="difference"))
 
