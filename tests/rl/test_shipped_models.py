@@ -1,0 +1,84 @@
+"""The shipped models of issue 28 (agents/models/<task>_seed{0..4}/): five training seeds per benchmark task, each
+with the configuration and env options that rebuild its env, trained within 15 CPU-minutes, and reproducing its
+rows of the published benchmark run (docs/benchmark/learners/benchmark.csv) through the benchmark's own job."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from cv2x_marl.env import tasks
+from cv2x_marl.experiments import benchmark
+from cv2x_marl.experiments.evaluate import trained_env_options
+
+ROOT = Path(__file__).resolve().parents[2]
+MODELS = ROOT / "agents" / "models"
+TABLE = ROOT / "docs" / "benchmark" / "learners" / "benchmark.csv"
+#: task -> (folder prefix, env id the models were trained on, model file, benchmark label, config, the env options
+#: that shape observations and actions beyond the id's defaults)
+SHIPPED = {
+    "singlemover": ("singlemover-v3", "cv2x/SingleMover-v3", "model.zip", "learned", "ppo_single_v3_deepsets.yaml", {}),
+    "cooperative": ("cooperative", "cv2x/Cooperative-v0", "model.pt", "learned", "mappo_cooperative.yaml", {}),
+    "traffic": (
+        "traffic",
+        "cv2x/Traffic-v1",
+        "model.zip",
+        "learned",
+        "ppo_traffic_v1_change.yaml",
+        {"speed_command": "change"},
+    ),
+}
+#: issue 28's training budget per seed on a 2-core machine
+CPU_BUDGET_S = 15 * 60
+
+
+def _shipped_rows() -> list[dict[str, str]]:
+    with (MODELS / "shipped.csv").open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("task", list(SHIPPED))
+def test_five_seeds_with_the_config_and_env_that_rebuild_them(task: str) -> None:
+    prefix, env_id, model, _, config, options = SHIPPED[task]
+    runs = sorted(p.name for p in MODELS.glob(f"{prefix}_seed*"))
+    assert runs == [f"{prefix}_seed{k}" for k in range(5)]
+    shipped = {r["name"]: r for r in _shipped_rows()}
+    for k, name in enumerate(runs):
+        folder = MODELS / name
+        cfg = json.loads((folder / "train_config.json").read_text())
+        assert cfg["seed"] == k and cfg["env_id"] == env_id
+        pool = cfg["env"].get("start_pool") or cfg.get("start_pool") or 0  # (PPO also takes it at the top level)
+        assert pool > 0  # training episodes from the training list's head, never a held-out one
+        got_id, got_options = trained_env_options(folder / model)
+        assert got_id == env_id and {key: got_options[key] for key in options} == options
+        assert tasks.task_of_env(env_id).name == task  # the task itself or its variant: the task's episodes
+        row = shipped[name]
+        assert (row["task"], row["config"], int(row["seed"])) == (task, f"agents/configs/{config}", k)
+        assert int(row["timesteps"]) == cfg["timesteps"]
+        assert 0 < float(row["cpu_s"]) <= CPU_BUDGET_S
+
+
+@pytest.mark.parametrize("task", list(SHIPPED))
+def test_a_shipped_model_reproduces_its_published_benchmark_rows(task: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Seed 0's first two held-out episodes through the benchmark's job (the env rebuilt from the model's
+    train_config.json): the recorded per-episode numbers, to 1e-9 relative (another CPU's ulps; nothing
+    discrete may change)."""
+    monkeypatch.chdir(ROOT)  # the table names the models by their paths in the repository
+    prefix, env_id, model, label, _, _ = SHIPPED[task]
+    pytest.importorskip("stable_baselines3" if model.endswith(".zip") else "torch")
+    with TABLE.open(newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["task"] == task and r["method"] == label and r["run"] == "0"]
+    rows = sorted(rows, key=lambda r: int(r["episode"]))[:2]
+    assert rows[0]["policy"] == f"ppo:agents/models/{prefix}_seed0/{model}" and rows[0]["env_id"] == env_id
+    # the benchmark's own planning: the env id from the model's train_config.json, the task's options
+    models = benchmark.parse_models([f"{task}/{label}={rows[0]['policy']}"], tasks.TASKS)
+    jobs = benchmark.plan_jobs(tasks.TASKS, [task], ["static"], models, episodes=2)
+    (job,) = [j for j in jobs if j["method"] == label]
+    assert job["env_id"] == env_id and job["seeds"] == [int(r["seed"]) for r in rows]
+    got = benchmark.run_job(job)
+    for g, r in zip(got, rows, strict=True):
+        for key in ("utility_start", "utility_end", "utility_gain", "prr_start", "prr_end", "prr_gain"):
+            assert g[key] == pytest.approx(float(r[key]), rel=1e-9, abs=1e-12), (task, key)
