@@ -46,7 +46,7 @@ import numpy as np
 from cv2x_marl.env.planning import best_reachable, reachable_set
 from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.env.tasks import TASKS
-from cv2x_marl.env.team_search import TEAM_GRIDS_M, TeamObjective, _lattice_in, _single_move, team_objective
+from cv2x_marl.env.team_search import team_moves, team_objective
 from cv2x_marl.experiments.evaluate import interval
 from cv2x_marl.policies.optimum import best_response_targets
 
@@ -56,31 +56,23 @@ GRID_M = 10.0
 REPLAN_EVERY = 10
 
 
+def selfish_moves(env) -> np.ndarray:
+    """[N, 2] each vehicle's own best reachable position (eq. 12 utility) with the others where they are now
+    (the best-response policy's grid, refined 16 times)."""
+    now = np.array(env.positions_m, dtype=np.float64)
+    out = now.copy()
+    for i in range(env.n):
+        out[i], _ = best_reachable(env.links.mover_row(i, now), reachable_set(env, i), env.p_min, GRID_M, 16)
+    return out
+
+
 def episode_targets(env) -> dict[str, np.ndarray]:
     """[N, 2] target positions of each computed variant, the env at its reset."""
-    n = env.n
-    start = np.array(env.positions_m, dtype=np.float64)
-    movers = list(range(n))
-    selfish = start.copy()
-    for i in movers:  # each against the others at their starts
-        selfish[i], _ = best_reachable(env.links.mover_row(i, start), reachable_set(env, i), env.p_min, GRID_M, 16)
-    objective = TeamObjective(env.links, env.p_min, True)
-    reaches = {i: reachable_set(env, i) for i in movers}
-    coarse = {i: _lattice_in(reaches[i], reaches[i].start_m, np.inf, TEAM_GRIDS_M[0]) for i in movers}
-    team_sim = start.copy()
-    for i in movers:
-        j0 = objective.set_positions(start)
-        moved, _ = _single_move(objective, start, j0, i, reaches, coarse, TEAM_GRIDS_M, 1e-12)
-        team_sim[i] = moved[i]
-    pos = start.copy()
-    j_now = objective.set_positions(pos)
-    for i in movers:
-        pos, j_now = _single_move(objective, pos, j_now, i, reaches, coarse, TEAM_GRIDS_M, 1e-12)
     return {
-        "selfish_simultaneous": selfish,
-        "best_response": best_response_targets(env, movers, 2, GRID_M, 16),
-        "team_simultaneous": team_sim,
-        "team_one_round": pos,
+        "selfish_simultaneous": selfish_moves(env),
+        "best_response": best_response_targets(env, list(range(env.n)), 2, GRID_M, 16),
+        "team_simultaneous": team_moves(env),
+        "team_one_round": team_moves(env, sequential=True),
     }
 
 
@@ -91,22 +83,10 @@ def gradual_gain(env, seed: int, team: bool, every: int = REPLAN_EVERY) -> float
     policy makes step by step, each vehicle reacting to the others' positions as they move."""
     env.reset(seed=seed)
     j0 = team_objective(env.links, env.positions_m, env.p_min)
-    movers = list(range(env.n))
     targets = np.array(env.positions_m, dtype=np.float64)
     while env.agents:
         if env.t % every == 0:
-            now = np.array(env.positions_m, dtype=np.float64)
-            reaches = {i: reachable_set(env, i) for i in movers}
-            if team:
-                objective = TeamObjective(env.links, env.p_min, True)
-                coarse = {i: _lattice_in(reaches[i], reaches[i].start_m, np.inf, TEAM_GRIDS_M[0]) for i in movers}
-                for i in movers:
-                    j_now = objective.set_positions(now)
-                    moved, _ = _single_move(objective, now, j_now, i, reaches, coarse, TEAM_GRIDS_M, 1e-12)
-                    targets[i] = moved[i]
-            else:
-                for i in movers:
-                    targets[i], _ = best_reachable(env.links.mover_row(i, now), reaches[i], env.p_min, GRID_M, 16)
+            targets = team_moves(env) if team else selfish_moves(env)
         step = np.clip((targets - env.positions_m) / env.max_step_m, -1.0, 1.0).astype(np.float32)
         env.step({a: step[env.agent_index[a]] for a in env.agents})
     return (team_objective(env.links, env.positions_m, env.p_min) - j0) / abs(j0)

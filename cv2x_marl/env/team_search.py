@@ -242,6 +242,39 @@ def _single_move(
     return pos, j_now
 
 
+def team_moves(
+    env: PlanningEnv,
+    sequential: bool = False,
+    normalise: bool = True,
+    grids_m: Sequence[float] = TEAM_GRIDS_M,
+    tol: float = 1e-12,
+) -> FloatArray:
+    """[N, 2] each vehicle's best reachable position for the team objective ``J`` by one single move of
+    :func:`team_search` (coarse grid, then finer ones), from where the vehicles are now.
+
+    Args:
+        env: a snapshot-mode env (its links, ``p_min``, positions and reachable sets now).
+        sequential: False: each vehicle's move with every other where it is now (decentralised moves made at
+            once); True: the vehicles in index order, each seeing the moves before it (one round of
+            :func:`team_search`'s ascent from here, without pair moves).
+        normalise: per-receiver normalisation (the env's ``normalise_reward``).
+        grids_m: the pitches (m), coarse to fine. tol: smallest rise of ``J`` that counts as a move.
+    """
+    now = np.array(env.positions_m, dtype=np.float64)
+    n = now.shape[0]
+    reaches = {i: reachable_set(env, i) for i in range(n)}
+    coarse = {i: _lattice_in(reaches[i], reaches[i].start_m, np.inf, float(grids_m[0])) for i in range(n)}
+    objective = TeamObjective(env.links, env.p_min, normalise)
+    out, pos = now.copy(), now.copy()
+    j_now = objective.set_positions(now)
+    for i in range(n):
+        if not sequential:
+            pos, j_now = now, objective.set_positions(now)  # a move above may have changed the state
+        pos, j_now = _single_move(objective, pos, j_now, i, reaches, coarse, grids_m, tol)
+        out[i] = pos[i]
+    return pos if sequential else out
+
+
 def _thin(points: FloatArray, count: int) -> FloatArray:
     """At most ``count`` of ``points`` [M, 2], evenly spaced in their order."""
     if points.shape[0] <= count:

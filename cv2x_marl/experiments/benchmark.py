@@ -177,13 +177,13 @@ def model_env_id(task: Task, label: str, specs: Sequence[str]) -> str:
     from cv2x_marl.experiments.evaluate import trained_env_options
     from cv2x_marl.policies.registry import PPO_PREFIX
 
-    ids = {trained_env_options(Path(s[len(PPO_PREFIX) :]))[0] or task.env_id for s in specs}
+    trained = {s: trained_env_options(Path(s[len(PPO_PREFIX) :])) for s in specs}
+    ids = {env_id or task.env_id for env_id, _ in trained.values()}
     if len(ids) > 1:
         raise ValueError(f"--model {task.name}/{label}: its runs were trained on different envs: {sorted(ids)}")
     env_id = ids.pop()
     defaults = {f.name: f.default for f in dataclasses.fields(EnvOptions)}
-    for s in specs:  # the task's measurements: a model trained with other noise is judged on the task's
-        options = trained_env_options(Path(s[len(PPO_PREFIX) :]))[1]
+    for s, (_, options) in trained.items():  # the task's measurements: a model trained with other noise is refused
         for key in MEASUREMENT_OPTIONS:
             if key in options and options[key] != defaults[key]:
                 raise ValueError(

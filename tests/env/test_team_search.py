@@ -9,7 +9,7 @@ import pytest
 
 from cv2x_marl.env.planning import reachable_set
 from cv2x_marl.env.registry import make_parallel_env
-from cv2x_marl.env.team_search import TeamObjective, _grid_in, team_objective, team_search
+from cv2x_marl.env.team_search import TeamObjective, _grid_in, team_moves, team_objective, team_search
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy, best_response_targets
 from cv2x_marl.policies.registry import SCRIPTED, make_policy
 from cv2x_marl.rng import env_stream
@@ -161,3 +161,22 @@ def test_optimum_policy_uses_the_team_search_only_for_the_team_reward() -> None:
     assert isinstance(brp, BestResponsePolicy) and "best-response" in SCRIPTED and not brp.team
     brp.act({a: None for a in team.agents})
     assert np.array_equal(brp.targets_m, best_response_targets(team, movers, 2, 10.0, 16))
+
+
+def test_team_moves_are_the_single_moves_of_the_search(team_env) -> None:
+    """``team_moves(sequential=True)`` is one round of the search's ascent in index order without pair moves
+    (bit for bit); made at once, each vehicle's move is taken against the positions now: the first vehicle's
+    is the same, none lowers J on its own, and some differ from the sequential ones."""
+    env = team_env
+    seq = team_moves(env, sequential=True)
+    ref = team_search(env, n_orders=1, max_rounds=1, pair_points=0)
+    np.testing.assert_array_equal(seq, ref.positions_m)
+    sim = team_moves(env)
+    np.testing.assert_array_equal(sim[0], seq[0])
+    now = np.array(env.positions_m)
+    j_now = team_objective(env.links, now, env.p_min)
+    for i in range(env.n):
+        alone = now.copy()
+        alone[i] = sim[i]
+        assert team_objective(env.links, alone, env.p_min) >= j_now - 1e-12
+    assert np.any(np.abs(sim - seq).max(axis=1) > 1.0)
