@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from cv2x_marl import runs
+from cv2x_marl import interrupts, runs
 from cv2x_marl.config import (
     PRESET_ALIASES,
     PRESETS,
@@ -84,6 +84,8 @@ OVERWRITE_HELP = (
 POSITIVE_FLOAT = _number_type(float, 0.0, True)
 FRACTION = _number_type(float, 0.0, True, 1.0, True)
 COUNT = _number_type(int, 1, False)
+#: ``evaluate``'s episodes without ``--episodes`` or ``--seeds``
+EVALUATE_EPISODES = 144
 #: the largest seed: seeds are 32-bit (numpy's legacy seeding, which stable-baselines3 calls, takes < 2**32)
 MAX_SEED = 2**32 - 1
 SEED = _number_type(int, 0, False, MAX_SEED, False)
@@ -275,11 +277,22 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         env_kwargs["replan_every"] = args.replan_every
     env_kwargs.update(ev.parse_env_options(args.env_option or [], ev.EVALUATE_FLAGS))
     policies = ev.expand_policies(args.policy or ["gbmu"])
+    seeds_env = args.env
+    if seeds_env is None and policies[0].startswith("ppo:"):  # the env the model was trained on
+        seeds_env = ev.trained_env_options(Path(policies[0][len("ppo:") :]))[0]
+    seeds = None if args.seeds is None else ev.parse_seeds(args.seeds, seeds_env)
+    if seeds is not None:
+        if args.seed is not None:
+            raise ValueError("--seed does not apply with --seeds (the episodes' seeds are given); drop one of them")
+        if args.episodes is not None:  # the first N of the list, as `benchmark --episodes`
+            if args.episodes > len(seeds):
+                raise ValueError(f"--episodes {args.episodes}: --seeds {args.seeds} gives only {len(seeds)} seeds")
+            seeds = seeds[: args.episodes]
     summary = ev.evaluate(
         args.env,
         policies if len(policies) > 1 else policies[0],
-        args.episodes,
-        args.seed,
+        EVALUATE_EPISODES if args.episodes is None else args.episodes,
+        0 if args.seed is None else args.seed,
         args.out,
         env_kwargs,
         model_path=resolve_model(str(args.model)),
@@ -287,7 +300,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         vs_optimum=args.vs_optimum,
         overwrite=args.overwrite,
-        seeds=None if args.seeds is None else ev.parse_seeds(args.seeds, args.env),
+        seeds=seeds,
     )
     if args.json:
         _print_json(summary)
@@ -560,9 +573,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-option", action="append", metavar="KEY=VALUE", help="env argument, YAML value (repeatable)")
     p.add_argument("--vs-optimum", action="store_true", help="also the optimum on every episode: share_of_optimum")
     p.add_argument(
-        "--episodes", type=COUNT, default=144, help="episodes; x movers at most 1,000,000 (rows kept in memory)"
+        "--episodes",
+        type=COUNT,
+        default=None,
+        help=f"episodes (default {EVALUATE_EPISODES}); with --seeds, the first N of them; x movers at most "
+        "1,000,000 (rows kept in memory)",
     )
-    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument(
+        "--seed", type=SEED, default=None, help="episode k resets with the k-th seed derived from it (default 0)"
+    )
     p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
     p.add_argument(
@@ -726,7 +745,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     runs.INVOCATION = ["cv2x-marl", *(sys.argv[1:] if argv is None else argv)]
     runs.INPUTS = _inputs(args)
-    previous = _terminate_as_interrupt()
+    previous = interrupts.install_safe_handlers()
     try:
         return int(args.func(args))
     except ConfigError as exc:
@@ -749,7 +768,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         runs.INVOCATION = None
         runs.INPUTS = []
-        _restore_signal(previous)
+        interrupts.restore_handlers(previous)
 
 
 def _notes(exc: BaseException) -> str:
@@ -772,27 +791,6 @@ def _inputs(args: argparse.Namespace) -> list[Path]:
         elif spec.endswith((".yaml", ".yml", ".json")):
             found.append(Path(spec))
     return found
-
-
-def _terminate_as_interrupt() -> Any:
-    """Make SIGTERM raise KeyboardInterrupt like Ctrl-C, so every run cleans up the same way."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    return signal.signal(signal.SIGTERM, handler)
-
-
-def _restore_signal(previous: Any) -> None:
-    import signal
-
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

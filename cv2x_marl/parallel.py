@@ -55,6 +55,14 @@ def map_on_ray(fn: Callable[..., Any], args: Sequence[tuple[Any, ...]], address:
         return list(ray.get([remote.remote(*a) for a in args]))
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the system reports one, else the count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def map_in_processes(
     fn: Callable[[Any], Any],
     items: Sequence[Any],

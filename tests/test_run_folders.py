@@ -281,6 +281,7 @@ _KERNEL_INTERRUPT = textwrap.dedent(
             (out_dir / "partial.txt").write_text("half")
             print("in kernel", flush=True)
             spin(n, np.zeros(2))
+            time.sleep(2)  # the code after the kernel: the CLI's handler raises here, a moment after the kernel
         raise AssertionError("not interrupted")
 
     sim_mod.simulate = fake_simulate

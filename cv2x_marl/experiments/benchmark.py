@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -78,7 +79,7 @@ def parse_models(items: Sequence[str], tasks: Mapping[str, Task]) -> dict[str, d
             raise ValueError(f"--model expects TASK=ppo:PATH or TASK/LABEL=ppo:PATH, got {item!r}")
         if task not in tasks:
             raise ValueError(f"--model {item}: unknown task {task!r}; tasks: {', '.join(tasks)}")
-        out.setdefault(task, {}).setdefault(label, []).extend(expand_policies([spec]))
+        out.setdefault(task, {}).setdefault(label, []).extend(expand_policies([spec], flag="--model"))
     for task, labels in out.items():
         for label, specs in labels.items():
             if len(set(specs)) != len(specs):
@@ -201,26 +202,62 @@ def model_env_id(task: Task, label: str, specs: Sequence[str]) -> str:
 
 def read_rows(path: Path) -> dict[tuple[str, str, str, int], dict[str, Any]]:
     """The episode rows of an earlier ``benchmark.csv`` (``--rows-from``), keyed by (task, env id, method,
-    seed), for scripted methods and ceilings only (run 0; a learned model's file may have changed since)."""
+    seed), for scripted methods and ceilings only (run 0; a learned model's file may have changed since).
+
+    Raises:
+        ValueError: naming ``--rows-from``, the file and, for a bad value, its line and column: not a file,
+            not UTF-8 text, other columns, a row cut short or too long, a value that is not a number.
+    """
     from cv2x_marl.policies.registry import PPO_PREFIX
 
     path = Path(path)
+    where = f"--rows-from {path}"
     if not path.is_file():
-        raise ValueError(f"--rows-from: no file {path}")
-    with path.open(newline="") as fh:
-        reader = csv.DictReader(fh)
-        if tuple(reader.fieldnames or ()) != CSV_FIELDS:
-            raise ValueError(f"--rows-from {path}: not a benchmark.csv; its columns must be {', '.join(CSV_FIELDS)}")
-        out = {}
+        raise ValueError(f"--rows-from: no file {path}" + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{where}: not a benchmark.csv (not UTF-8 text: byte {exc.start} is not valid)") from None
+    if text and not text.endswith("\n"):
+        last = text.count("\n") + 1
+        raise ValueError(
+            f"{where}, line {last}: the last row does not end the line (a file cut short?); run the benchmark "
+            "without --rows-from, or with an intact file"
+        )
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    try:
+        fields = tuple(reader.fieldnames or ())
+    except csv.Error as exc:
+        raise ValueError(f"{where}: not a benchmark.csv ({exc})") from None
+    if fields != CSV_FIELDS:
+        raise ValueError(f"{where}: not a benchmark.csv; its columns must be {', '.join(CSV_FIELDS)}")
+    out = {}
+    try:
         for r in reader:
+            line = reader.line_num
+            extra = r.pop(None, None) or []  # a row too long: its extra values
+            missing = sum(v is None for v in r.values())
+            if extra or missing:
+                n = len(CSV_FIELDS) - missing + len(extra)
+                raise ValueError(
+                    f"{where}, line {line}: {n} values, a row has {len(CSV_FIELDS)} (a file cut short or "
+                    "edited?); run the benchmark without --rows-from, or with an intact file"
+                )
             if r["policy"].startswith(PPO_PREFIX) or r["run"] != "0":
                 continue
             row: dict[str, Any] = dict(r)
-            for k in ("run", "episode", "seed"):
-                row[k] = int(r[k])
-            for k in CSV_FIELDS[7:]:
-                row[k] = float(r[k])
+            for k in CSV_FIELDS:
+                kind = int if k in ("run", "episode", "seed") else float if k in CSV_FIELDS[7:] else None
+                if kind is None:
+                    continue
+                try:
+                    row[k] = kind(r[k])
+                except ValueError:
+                    want = "an integer" if kind is int else "a number"
+                    raise ValueError(f"{where}, line {line}, column {k}: {r[k]!r} is not {want}") from None
             out[(r["task"], r["env_id"], r["method"], row["seed"])] = row
+    except csv.Error as exc:
+        raise ValueError(f"{where}, line {reader.line_num}: not a benchmark.csv ({exc})") from None
     return out
 
 
@@ -421,6 +458,45 @@ def table_markdown(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+#: peak memory of one worker process running scripted jobs (measured: 306-338 MB peak RSS of one
+#: ``cv2x-marl evaluate`` process on each task's env with its ceiling, 2 cores, numba cache warm)
+WORKER_BYTES = 350_000_000
+#: the same with a learned model (torch loaded: 515-587 MB measured for a MAPPO and a PPO model)
+LEARNED_WORKER_BYTES = 600_000_000
+
+
+def check_workers(workers: int, jobs: Sequence[Mapping[str, Any]], address: str | None = None) -> int:
+    """Refuse more local workers than CPUs, or workers whose memory would exceed the limit, before any
+    folder is touched; returns the estimated peak memory in bytes (workers x :data:`WORKER_BYTES`, or
+    :data:`LEARNED_WORKER_BYTES` when a learned model runs, plus this process).
+
+    A Ray cluster (``address``) schedules on its own CPUs: only the local checks are skipped."""
+    from cv2x_marl.parallel import usable_cpus
+    from cv2x_marl.sim.memory import format_bytes, memory_limit
+
+    if address is not None or workers == 1:
+        return 0
+    cpus = usable_cpus()
+    if workers > cpus:
+        raise ValueError(
+            f"--workers {workers}: this machine lets the run use {cpus} CPU(s); give at most {cpus} (each worker "
+            "is a process busy on one CPU: more run no faster and each holds its own memory), or run on a Ray "
+            "cluster with --address"
+        )
+    used = min(workers, max(1, len(jobs)))
+    learned = any(str(j.get("policy", "")).startswith("ppo:") for j in jobs)
+    per = LEARNED_WORKER_BYTES if learned else WORKER_BYTES
+    total = (used + 1) * per
+    limit = memory_limit(total)
+    if limit is not None and total > limit[0]:
+        raise ValueError(
+            f"--workers {workers}: about {format_bytes(total)} ({used} worker processes and this one, "
+            f"{format_bytes(per)} each{' with torch for the learned models' if learned else ''}), above "
+            f"{limit[1]} ({format_bytes(limit[0])}); give fewer --workers"
+        )
+    return total
+
+
 def run_benchmark(
     out_dir: Path,
     tasks: Sequence[str] | None = None,
@@ -470,6 +546,7 @@ def run_benchmark(
     jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes, chunk)
     earlier = read_rows(rows_from) if rows_from is not None else {}
     todo, reused = reuse_rows(jobs, earlier)
+    check_workers(workers, todo, address)
     params: dict[str, Any] = {
         "tasks": list(dict.fromkeys(j["task"] for j in jobs)),
         "methods": list(methods or []),

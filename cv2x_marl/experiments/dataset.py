@@ -255,6 +255,10 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
     """Read ``samples.parquet`` and ``manifest.json`` of a dataset folder, with clear errors."""
     data_dir = Path(data_dir)
     if not data_dir.is_dir():
+        if data_dir.exists():
+            raise DatasetError(
+                f"dataset folder {data_dir} is a file, not a folder: give the folder `cv2x-marl dataset --out` wrote"
+            )
         raise DatasetError(f"dataset folder {data_dir} does not exist")
     mpath = data_dir / MANIFEST
     if not mpath.exists():
@@ -285,7 +289,10 @@ def load_dataset(data_dir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]
             f"{mpath} has no SHA-256 of {SAMPLES} (key sha256.{SAMPLES}): the manifest was edited or is not "
             "from `cv2x-marl dataset`; rebuild the dataset"
         )
-    if spath.is_file() and sha256_file(spath) != expected:
+    if not spath.is_file():
+        what = "is a folder, not a file" if spath.is_dir() else "is missing"
+        raise DatasetError(f"{spath} {what}: the dataset is incomplete or was changed; rebuild the dataset")
+    if sha256_file(spath) != expected:
         raise DatasetError(
             f"{spath} does not match the SHA-256 in {mpath}: the file was changed or corrupted; rebuild the dataset"
         )

@@ -146,20 +146,20 @@ def parse_env_options(items: Iterable[str], reserved: dict[str, str] | None = No
     return out
 
 
-def expand_policies(specs: Sequence[str]) -> list[str]:
+def expand_policies(specs: Sequence[str], flag: str = "--policy") -> list[str]:
     """Repeated ``--policy`` values, a ``ppo:`` pattern (``ppo:runs/seed*/model.zip``) expanded to its
-    sorted matches; a pattern that matches nothing is refused."""
+    sorted matches; a pattern that matches nothing is refused (the error names ``flag``)."""
     out: list[str] = []
     for spec in specs:
         if spec.startswith(PPO_PREFIX) and glob.has_magic(spec[len(PPO_PREFIX) :]):
             found = sorted(glob.glob(spec[len(PPO_PREFIX) :]))
             if not found:
-                raise ValueError(f"--policy {spec}: no file matches the pattern")
+                raise ValueError(f"{flag} {spec}: no file matches the pattern")
             out.extend(PPO_PREFIX + f for f in found)
         else:
             out.append(spec)
     if len(set(out)) != len(out):
-        raise ValueError(f"--policy: a policy given twice in {out}")
+        raise ValueError(f"{flag}: a policy given twice in {out}")
     return out
 
 
@@ -209,6 +209,17 @@ def optimum_utilities(env: MobilityEnv, ref: Any = None) -> np.ndarray:
     ref.reset()
     ref.act({})  # computes the episode's targets (the env at its reset)
     return env._utilities(env.links.success(ref.targets_m), env.target)
+
+
+def ceiling_env(env_id: str, env_kwargs: dict[str, Any], env: MobilityEnv) -> MobilityEnv:
+    """The env the ceiling (``optimum``) is computed in for ``vs_optimum``: ``env`` itself, or, where ``env``'s
+    action space is one the ceiling does not act in (``speed_command="change"``: a learner's own speed
+    changes; the ceiling commands target speeds), the same env id and options with ``speed_command="target"``.
+    The ceiling is a property of the episode: the two envs reset to the same scenario for the same seed
+    (tested), as ``benchmark`` scores such a model against its task's ceiling."""
+    if getattr(env.options, "speed_command", "target") == "target":
+        return env
+    return make_parallel_env(env_id, **{**env_kwargs, "speed_command": "target"})
 
 
 @dataclasses.dataclass
@@ -364,7 +375,8 @@ def evaluate_rows(
     names = [r.policy if isinstance(r.policy, str) else p.name for r, p in zip(resolved, policies, strict=True)]
     movers = [a for a in env.possible_agents if env.mover_mask[env.agent_index[a]]]
     check_episodes(episodes * len(policies), len(movers))
-    ref = make_policy("optimum", env) if vs_optimum else None  # too large a search: refused here
+    ref_env = ceiling_env(env_id, first.env_kwargs, env) if vs_optimum else env
+    ref = make_policy("optimum", ref_env) if vs_optimum else None  # too large a search: refused here
     protocol = seeds is not None or several
     params: dict[str, Any] = {
         "env_id": env_id,
@@ -391,7 +403,9 @@ def evaluate_rows(
                 obs, infos = env.reset(seed=ep_seed)
                 policy.reset(ep_seed)
                 if ref is not None and ep not in optimum_cache:
-                    optimum_cache[ep] = optimum_utilities(env, ref)
+                    if ref_env is not env:  # the same episode in the env the ceiling acts in
+                        ref_env.reset(seed=ep_seed)
+                    optimum_cache[ep] = optimum_utilities(ref_env, ref)
                 u_opt = optimum_cache.get(ep)
                 if means and ep not in static_cache:
                     from cv2x_marl.policies.traffic import reference_means

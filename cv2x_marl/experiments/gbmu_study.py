@@ -17,6 +17,7 @@ algorithm (:data:`VARIANTS`, selected with ``--methods``):
 from __future__ import annotations
 
 import csv
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -100,6 +101,14 @@ def check_study(
     if case != "realizations":
         return
     total, per = study_bytes(cfg, realizations, iterations, n_methods)
+    if per > MAX_STUDY_BYTES:  # one realisation is too large: the vehicle count is the culprit
+        rest = per - cfg.n_vehicles**2 * STUDY_PAIR_BYTES
+        most = math.isqrt(max(0, MAX_STUDY_BYTES - rest) // STUDY_PAIR_BYTES)
+        raise ValueError(
+            f"vehicles.n_vehicles {cfg.n_vehicles:,}: one realisation would hold about {per / 1e9:,.1f} GB "
+            f"({cfg.n_vehicles} x {cfg.n_vehicles} vehicle pairs), above the limit of {MAX_STUDY_BYTES / 1e9:g} GB "
+            f"for the whole study; lower vehicles.n_vehicles to at most {most:,}"
+        )
     if total > MAX_STUDY_BYTES:
         raise ValueError(
             f"--realizations {realizations:,} would hold about {total / 1e9:,.1f} GB ({per / 1e3:,.1f} kB per "

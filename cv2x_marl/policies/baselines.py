@@ -141,6 +141,8 @@ def baseline_files(folder: str | Path) -> list[Path]:
     """The baseline files of a folder, by name."""
     folder = Path(folder)
     if not folder.is_dir():
+        if folder.exists():
+            raise ValueError(f"baselines folder {folder} is a file, not a folder of baseline files (*.yaml)")
         raise ValueError(f"baselines folder {folder} does not exist")
     files = sorted(p for p in folder.iterdir() if p.suffix in SUFFIXES and p.name != "results.json")
     if not files:

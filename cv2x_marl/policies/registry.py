@@ -118,6 +118,13 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         estimator = "model" if spec == "planner" else "sensing"
         return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)
     if spec.startswith(PPO_PREFIX):
-        path = Path(spec[len(PPO_PREFIX) :])
+        raw = spec[len(PPO_PREFIX) :]
+        if not raw:
+            raise ValueError(f"policy {spec!r}: no path after {PPO_PREFIX!r}; give {PPO_PREFIX}PATH to a model file")
+        path = Path(raw)
+        if path.is_dir():
+            raise ValueError(
+                f"policy {spec}: {path} is a folder; give the model file in it (model.zip for PPO, model.pt for MAPPO)"
+            )
         return MappoPolicy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

@@ -34,6 +34,7 @@ deterministic and GBMU on ``eval_episodes`` fixed episodes from ``eval_seed``), 
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import sys
@@ -52,6 +53,23 @@ from cv2x_marl.rl.mappo_config import MappoConfig
 STREAMS = ("torch", "episodes", "minibatches")
 #: the TensorDict group of the agents
 GROUP = "agents"
+#: the ``format`` of a MAPPO checkpoint (``checkpoints/mappo_<iteration>.pt``)
+CHECKPOINT_FORMAT = "cv2x_marl.mappo_checkpoint"
+
+
+def checkpoint_path(run_dir: Path, iteration: int) -> Path:
+    """``run_dir/checkpoints/mappo_<iteration>.pt``."""
+    return Path(run_dir) / "checkpoints" / f"mappo_{int(iteration)}.pt"
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The MAPPO checkpoint with the most iterations in ``run_dir/checkpoints`` (None when there is none)."""
+    found = [
+        (int(p.stem.split("_")[1]), p)
+        for p in (Path(run_dir) / "checkpoints").glob("mappo_*.pt")
+        if p.stem.split("_")[1].isdigit()
+    ]
+    return max(found)[1] if found else None
 
 
 def streams(seed: int, copies: int) -> tuple[int, list[np.random.Generator], np.random.Generator]:
@@ -159,8 +177,12 @@ class Mappo:
         """Agent-steps of one iteration: K copies x T steps x N agents."""
         return self.cfg.copies * self.steps * self.n_agents
 
-    def collect(self) -> dict[str, Any]:
-        """One episode of every copy (module docstring, step 1): arrays [T, K, ...] and the last states [K, S]."""
+    def collect(self, stop: Any = None) -> dict[str, Any] | None:
+        """One episode of every copy (module docstring, step 1): arrays [T, K, ...] and the last states [K, S].
+
+        ``stop``: a :class:`cv2x_marl.rl.train.StopRequest`; once it holds a signal, the collection is given up at
+        the next step and None returned (the random streams have moved on: :meth:`rng_state` taken before the
+        call is the state to save)."""
         import torch
         from tensordict import TensorDict
         from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -179,6 +201,8 @@ class Mappo:
         with torch.random.fork_rng(devices=[]), torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
             torch.random.set_rng_state(self.torch_state)
             for t in range(t_):
+                if stop is not None and stop.signal is not None:
+                    return None
                 obs[t] = [[o[a] for a in self.agents] for o in current]
                 td = TensorDict({GROUP: TensorDict({"observation": torch.from_numpy(obs[t])}, [k_, n_])}, [k_])
                 self.policy(td)
@@ -282,6 +306,39 @@ class Mappo:
             "critic_state": self.critic.state_dict(),
         }
 
+    def rng_state(self) -> dict[str, Any]:
+        """A copy of the run's random streams now (torch, the K episode generators, the mini-batch one)."""
+        return {
+            "torch": self.torch_state.clone(),
+            "episodes": [copy.deepcopy(g.bit_generator.state) for g in self.episode_rngs],
+            "minibatches": copy.deepcopy(self.batch_rng.bit_generator.state),
+        }
+
+    def training_state(self, iteration: int, rows: list[dict[str, Any]], rngs: dict[str, Any]) -> dict[str, Any]:
+        """A checkpoint: everything the next iteration reads (networks, Adam's moments, the streams ``rngs``),
+        the iterations done and the learning-curve rows so far (``torch.load(weights_only=True)`` reads it)."""
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "iteration": int(iteration),
+            "actor_state": self.actor.state_dict(),
+            "critic_state": self.critic.state_dict(),
+            "optim_state": self.optim.state_dict(),
+            "rng": rngs,
+            "rows": [dict(r) for r in rows],
+        }
+
+    def load_training_state(self, data: dict[str, Any]) -> tuple[int, list[dict[str, Any]]]:
+        """Restore a :meth:`training_state`; returns its iterations done and its learning-curve rows."""
+        self.actor.load_state_dict(data["actor_state"])
+        self.critic.load_state_dict(data["critic_state"])
+        self.optim.load_state_dict(data["optim_state"])
+        rng = data["rng"]
+        self.torch_state = rng["torch"].clone()
+        for g, state in zip(self.episode_rngs, rng["episodes"], strict=True):
+            g.bit_generator.state = state
+        self.batch_rng.bit_generator.state = rng["minibatches"]
+        return int(data["iteration"]), [dict(r) for r in data["rows"]]
+
     def digest(self) -> str:
         """A short hash of the actor's and the critic's parameters (to compare two runs)."""
         h = hashlib.sha256()
@@ -313,80 +370,159 @@ def train_mappo(
     run_dir: Path,
     progress: bool = True,
     overwrite: bool = False,
+    resume: bool = False,
 ) -> dict[str, Any]:
-    """Train MAPPO for at least ``timesteps`` agent-steps (whole iterations); write the run folder; return the record.
+    """Train (or resume) MAPPO for at least ``timesteps`` agent-steps (whole iterations); write the run folder;
+    return the record.
+
+    Checkpoints (:meth:`Mappo.training_state`: networks, Adam's moments, the random streams, the learning
+    curve) are written every ``checkpoint_every`` iterations and at the end. SIGINT / SIGTERM stop training at
+    the next step (a second signal at once): an iteration whose collection was cut short is not counted (its
+    episodes are collected again on resume), one cut during its update is finished; the checkpoint of the
+    iterations done is saved and :class:`~cv2x_marl.rl.train.TrainingInterrupted` raised. ``resume`` continues
+    from the newest checkpoint: the parameters, the learning curve and the checkpoints then equal those of an
+    uninterrupted run (tested).
 
     Raises:
-        TrainError: bad arguments or configuration (checked before ``run_dir`` is touched).
-        cv2x_marl.runs.RunFolderError: the folder is in use, or not empty without ``overwrite``.
+        TrainError: bad arguments or configuration, a resume whose configuration differs or that has nothing
+            left to train (checked before ``run_dir`` is touched).
+        cv2x_marl.runs.RunFolderError: the folder is in use, or not empty without ``overwrite`` or ``resume``.
     """
+    import torch
+
+    from cv2x_marl.rl.train import check_resume_config
+    from cv2x_marl.runs import RunFolder
+
+    if not is_int(timesteps) or timesteps < 1:
+        raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
+    resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
+    if resume:
+        check_resume_config(run_dir, resolved)
+    torch.set_num_threads(1)
+    run = build_mappo(cfg, seed)
+    try:
+        iterations = math.ceil(timesteps / run.agent_steps())
+        ckpt = latest_checkpoint(run_dir) if resume else None
+        state = _read_checkpoint(ckpt) if ckpt is not None else None
+        if state is not None and int(state["iteration"]) >= iterations:
+            raise TrainError(
+                f"--resume: {run_dir} already has {int(state['iteration']) * run.agent_steps()} agent-steps "
+                f"(>= --timesteps {timesteps}); ask for more steps to continue it (its model.pt is kept as it is)"
+            )
+        params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps, "algo": "mappo"}
+        with RunFolder(run_dir, "train", overwrite=overwrite, resume=resume, keep_on_failure=True, parameters=params):
+            return _train_mappo(run, cfg, resolved, iterations, Path(run_dir), state, progress)
+    finally:
+        run.close()
+
+
+def _read_checkpoint(path: Path) -> dict[str, Any]:
+    import torch
+
+    try:
+        data = torch.load(path, weights_only=True)
+    except Exception as exc:  # any load failure is reported with the file name
+        raise TrainError(f"--resume: cannot read the checkpoint {path}: {type(exc).__name__}: {exc}") from exc
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise TrainError(f"--resume: {path} is not a MAPPO checkpoint of cv2x-marl train")
+    return data
+
+
+def _train_mappo(
+    run: Mappo,
+    cfg: MappoConfig,
+    resolved: dict[str, Any],
+    iterations: int,
+    run_dir: Path,
+    state: dict[str, Any] | None,
+    progress: bool,
+) -> dict[str, Any]:
     import torch
 
     from cv2x_marl.experiments.evaluate import evaluate
     from cv2x_marl.io import atomic_write, write_json
     from cv2x_marl.policies.base import BatchPolicy
-    from cv2x_marl.rl.train import write_eval_rows
-    from cv2x_marl.runs import RunFolder
+    from cv2x_marl.rl.train import StopRequest, TrainingInterrupted, write_eval_rows
 
-    if not is_int(timesteps) or timesteps < 1:
-        raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
-    torch.set_num_threads(1)
-    run = build_mappo(cfg, seed)
-    iterations = math.ceil(timesteps / run.agent_steps())
+    write_json(run_dir / "train_config.json", resolved)
+    done, rows = run.load_training_state(state) if state is not None else (0, [])
+    if state is not None:  # the learning curve goes back to the checkpoint; later checkpoints go with it
+        write_eval_rows(run_dir / "eval.csv", rows)
+        for path in (run_dir / "checkpoints").glob("mappo_*.pt"):
+            if path.stem.split("_")[1].isdigit() and int(path.stem.split("_")[1]) > done:
+                path.unlink()
+
+    def save(iteration: int, rngs: dict[str, Any]) -> None:
+        snapshot = run.training_state(iteration, rows, rngs)
+        atomic_write(checkpoint_path(run_dir, iteration), lambda tmp: torch.save(snapshot, tmp))
+
     eval_env = eval_env_options(cfg)
-    params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps, "algo": "mappo"}
-    rows: list[dict[str, Any]] = []
-    try:
-        with RunFolder(run_dir, "train", overwrite=overwrite, keep_on_failure=True, parameters=params):
-            write_json(run_dir / "train_config.json", {**cfg.to_dict(), "seed": seed, "timesteps": timesteps})
-            n_ep, e_seed = cfg.eval_episodes, cfg.eval_seed
-            gbmu = evaluate(cfg.env_id, "gbmu", n_ep, e_seed, None, eval_env, progress=False)
-            t0 = time.perf_counter()
-            for it in range(1, iterations + 1):
-                batch = run.collect()
-                losses = run.update(batch)
-                if it % cfg.eval_every == 0 or it == iterations:
-                    res = evaluate(
-                        cfg.env_id, BatchPolicy(run.act_fn(), "mappo"), n_ep, e_seed, None, eval_env, progress=False
+    n_ep, e_seed = cfg.eval_episodes, cfg.eval_seed
+    gbmu = evaluate(cfg.env_id, "gbmu", n_ep, e_seed, None, eval_env, progress=False)
+    t0 = time.perf_counter()
+    before, batch = run.rng_state(), None
+    with StopRequest() as stop:
+        for it in range(done + 1, iterations + 1):
+            before = run.rng_state()
+            batch = run.collect(stop)
+            if batch is None:  # cut short: this iteration is not counted
+                break
+            losses = run.update(batch)
+            if it % cfg.eval_every == 0 or it == iterations:
+                res = evaluate(
+                    cfg.env_id, BatchPolicy(run.act_fn(), "mappo"), n_ep, e_seed, None, eval_env, progress=False
+                )
+                rows.append(
+                    {
+                        "iteration": it,
+                        "timesteps": it * run.agent_steps(),
+                        "train_mean_return": float(batch["reward"].sum(0).mean()),
+                        "mappo_mean_utility_gain": res["mean_utility_gain"],
+                        "mappo_mean_prr_gain": res["mean_prr_gain"],
+                        "mappo_mean_return": res["mean_return"],
+                        "gbmu_mean_utility_gain": gbmu["mean_utility_gain"],
+                        **losses,
+                    }
+                )
+                write_eval_rows(run_dir / "eval.csv", rows)
+                if progress:
+                    r = rows[-1]
+                    print(
+                        f"iteration {it}/{iterations}: team utility gain {r['mappo_mean_utility_gain']:+.1%} "
+                        f"(gbmu {r['gbmu_mean_utility_gain']:+.1%})",
+                        file=sys.stderr,
                     )
-                    rows.append(
-                        {
-                            "iteration": it,
-                            "timesteps": it * run.agent_steps(),
-                            "train_mean_return": float(batch["reward"].sum(0).mean()),
-                            "mappo_mean_utility_gain": res["mean_utility_gain"],
-                            "mappo_mean_prr_gain": res["mean_prr_gain"],
-                            "mappo_mean_return": res["mean_return"],
-                            "gbmu_mean_utility_gain": gbmu["mean_utility_gain"],
-                            **losses,
-                        }
-                    )
-                    write_eval_rows(run_dir / "eval.csv", rows)
-                    if progress:
-                        r = rows[-1]
-                        print(
-                            f"iteration {it}/{iterations}: team utility gain {r['mappo_mean_utility_gain']:+.1%} "
-                            f"(gbmu {r['gbmu_mean_utility_gain']:+.1%})",
-                            file=sys.stderr,
-                        )
-            wall = time.perf_counter() - t0
-            atomic_write(run_dir / "model.pt", lambda tmp: torch.save(run.model(), tmp))
-            record = {
-                "algo": "mappo",
-                "env_id": cfg.env_id,
-                "seed": seed,
-                "timesteps": iterations * run.agent_steps(),
-                "iterations": iterations,
-                "wall_s": wall,
-                "steps_per_s": iterations * run.agent_steps() / wall if wall > 0 else float("nan"),
-                "final_eval": {k: v for k, v in rows[-1].items() if k.startswith("mappo_")},
-                "parameters_digest": run.digest(),
-                "torch": torch.__version__,
-            }
-            write_json(run_dir / "record.json", record)
-            return record
-    finally:
-        run.close()
+            done = it
+            if it % cfg.checkpoint_every == 0 or it == iterations:
+                save(it, run.rng_state())
+            if stop.signal is not None:
+                break
+        wall = time.perf_counter() - t0
+        if stop.signal is not None:
+            if not checkpoint_path(run_dir, done).exists():
+                save(done, before if batch is None else run.rng_state())
+            cut = " (the iteration being collected is not counted)" if batch is None else ""
+            raise TrainingInterrupted(
+                f"training stopped after {done} of {iterations} iterations ({done * run.agent_steps()} agent-steps)"
+                f"{cut}; checkpoint saved in {run_dir / 'checkpoints'} (continue with --resume)"
+            )
+    atomic_write(run_dir / "model.pt", lambda tmp: torch.save(run.model(), tmp))
+    start = int(state["iteration"]) if state is not None else 0
+    record = {
+        "algo": "mappo",
+        "env_id": cfg.env_id,
+        "seed": resolved["seed"],
+        "timesteps": iterations * run.agent_steps(),
+        "iterations": iterations,
+        "resumed_from": start * run.agent_steps() if state is not None else None,
+        "wall_s": wall,
+        "steps_per_s": (iterations - start) * run.agent_steps() / wall if wall > 0 else float("nan"),
+        "final_eval": {k: v for k, v in rows[-1].items() if k.startswith("mappo_")},
+        "parameters_digest": run.digest(),
+        "torch": torch.__version__,
+    }
+    write_json(run_dir / "record.json", record)
+    return record
 
 
 def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
@@ -395,13 +531,13 @@ def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
     from cv2x_marl.rl.mappo_config import load_mappo_config
     from cv2x_marl.rl.train import run_settings
 
-    if args.resume:
-        raise TrainError("--resume: MAPPO runs are not resumable; train again with --overwrite")
     cfg = load_mappo_config(args.config, env_id=args.env, copies=args.copies)
     from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", default_timesteps)
     seed = args.seed if args.seed is not None else from_file.get("seed", 0)
-    record = train_mappo(cfg, timesteps, seed, args.out, progress=not args.quiet, overwrite=args.overwrite)
+    record = train_mappo(
+        cfg, timesteps, seed, args.out, progress=not args.quiet, overwrite=args.overwrite, resume=args.resume
+    )
     if args.json:
         print_json(record)
     else:

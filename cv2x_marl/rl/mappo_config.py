@@ -10,6 +10,7 @@ A MAPPO file is a training config (docs/rl.md) whose top-level ``algo`` is ``map
     env: {max_cycles: 100, max_step_m: 5.0, start_pool: 256}
     mappo: {learning_rate: 3e-4, n_epochs: 5, minibatch_steps: 200, ...}   # MappoSettings
     eval_every: 10            # iterations between learning-curve rows (eval.csv)
+    checkpoint_every: 10      # iterations between checkpoints (--resume continues from the newest)
     eval_episodes: 8
     eval_seed: 10000
 
@@ -114,6 +115,8 @@ class MappoConfig:
     mappo: MappoSettings = field(default_factory=MappoSettings)
     #: iterations between two learning-curve rows (``eval.csv``)
     eval_every: int = 10
+    #: iterations between two checkpoints (``checkpoints/mappo_<iteration>.pt``; also at the end and at an interrupt)
+    checkpoint_every: int = 10
     eval_episodes: int = 8
     eval_seed: int = 10_000
     algo: str = "mappo"
@@ -128,7 +131,7 @@ class MappoConfig:
                 f"env_id {self.env_id!r}: MAPPO trains on {', '.join(MAPPO_ENV_IDS)} (every vehicle moves for the "
                 "team reward); other ids train with algo: ppo"
             )
-        for name in ("copies", "eval_every", "eval_episodes"):
+        for name in ("copies", "eval_every", "checkpoint_every", "eval_episodes"):
             object.__setattr__(self, name, _count(f"train.{name}", getattr(self, name)))
         if self.copies > MAX_COPIES:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")

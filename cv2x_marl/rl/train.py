@@ -263,7 +263,7 @@ def save_model(model: Any, path: Path) -> Path:
     return atomic_write(path, lambda tmp: model.save(tmp))
 
 
-class _StopRequest:
+class StopRequest:
     """SIGINT/SIGTERM during training: the first signal asks training to stop at the next step
     (a checkpoint is then saved); a second one interrupts at once."""
 
@@ -275,7 +275,7 @@ class _StopRequest:
         self.cut = False
         self._previous: dict[int, Any] = {}
 
-    def __enter__(self) -> _StopRequest:
+    def __enter__(self) -> StopRequest:
         import signal
         import threading
 
@@ -301,7 +301,7 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 def _callbacks(
-    cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool, stop: _StopRequest
+    cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool, stop: StopRequest
 ) -> list[Any]:
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -441,6 +441,22 @@ def trained_steps(steps: int, rollout: int) -> int:
     return int(steps) - int(steps) % int(rollout)
 
 
+def check_resume_config(run_dir: Path, resolved: dict[str, Any]) -> None:
+    """Refuse ``--resume`` on a folder without ``train_config.json`` or whose configuration or seed differs from
+    ``resolved`` (the timesteps may differ: a resume may ask for more), before the folder is touched."""
+    cfg_path = Path(run_dir) / "train_config.json"
+    if not cfg_path.exists():
+        raise TrainError(f"--resume: {run_dir} has no train_config.json (nothing to resume)")
+    try:
+        old = json.loads(cfg_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise TrainError(f"--resume: cannot read {cfg_path}: {exc}") from exc
+    if not isinstance(old, dict) or {k: v for k, v in old.items() if k != "timesteps"} != {
+        k: v for k, v in resolved.items() if k != "timesteps"
+    }:
+        raise TrainError(f"--resume: the configuration or seed differs from the one in {cfg_path}")
+
+
 def train(
     cfg: TrainConfig,
     timesteps: int,
@@ -478,17 +494,7 @@ def train(
     run_dir = Path(run_dir)
     resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
     if resume:
-        cfg_path = run_dir / "train_config.json"
-        if not cfg_path.exists():
-            raise TrainError(f"--resume: {run_dir} has no train_config.json (nothing to resume)")
-        try:
-            old = json.loads(cfg_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise TrainError(f"--resume: cannot read {cfg_path}: {exc}") from exc
-        if not isinstance(old, dict) or {k: v for k, v in old.items() if k != "timesteps"} != {
-            k: v for k, v in resolved.items() if k != "timesteps"
-        }:
-            raise TrainError(f"--resume: the configuration or seed differs from the one in {cfg_path}")
+        check_resume_config(run_dir, resolved)
     import torch
 
     torch.set_num_threads(1)
@@ -537,7 +543,7 @@ def _train(
     start = model.num_timesteps
     remaining = max(0, timesteps - start)
     t0 = time.perf_counter()
-    with _StopRequest() as stop:
+    with StopRequest() as stop:
         model.learn(
             remaining,
             callback=_callbacks(cfg, run_dir, vec.num_envs, timesteps, progress, stop),

@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from cv2x_marl.interrupts import signals_deferred
 from cv2x_marl.sim.kernels.per import (
     LIN_MARGIN,
     db_below,
@@ -229,42 +230,43 @@ def period_chunk(
     """
     # the named tuples' fields as plain arguments: numba dispatches a named tuple through its Python typeof
     # (about 2 us per call and tuple, measured), plain arguments through its C fast path
-    out = _period_chunk(
-        pairs.rx,
-        pairs.tx,
-        pairs.distance_m,
-        pairs.rx_mw,
-        pairs.subset,
-        pairs.links,
-        vehicles.active,
-        vehicles.resource,
-        vehicles.slot,
-        vehicles.releasing,
-        link_model.n_res,
-        link_model.n_sub,
-        link_model.noise_mw,
-        link_model.model,
-        link_model.per_sinr_db,
-        link_model.per,
-        link_model.threshold_db,
-        link_model.sensitivity_dbm,
-        link_model.flat_inband_lin,
-        link_model.leakage,
-        sci.sinr_lin,
-        sci.bler,
-        sci.offset_db,
-        sci.gates_pssch,
-        buffers.period_rssi_mw,
-        buffers.period_sci_mw,
-        buffers.total,
-        buffers.total_slot,
-        buffers.tile_subframes,
-        bins.bin_m,
-        bins.n_bins,
-        bins.n_causes,
-        link_rng,
-        sci_rng,
-    )
+    with signals_deferred():  # a Generator argument: see cv2x_marl.interrupts
+        out = _period_chunk(
+            pairs.rx,
+            pairs.tx,
+            pairs.distance_m,
+            pairs.rx_mw,
+            pairs.subset,
+            pairs.links,
+            vehicles.active,
+            vehicles.resource,
+            vehicles.slot,
+            vehicles.releasing,
+            link_model.n_res,
+            link_model.n_sub,
+            link_model.noise_mw,
+            link_model.model,
+            link_model.per_sinr_db,
+            link_model.per,
+            link_model.threshold_db,
+            link_model.sensitivity_dbm,
+            link_model.flat_inband_lin,
+            link_model.leakage,
+            sci.sinr_lin,
+            sci.bler,
+            sci.offset_db,
+            sci.gates_pssch,
+            buffers.period_rssi_mw,
+            buffers.period_sci_mw,
+            buffers.total,
+            buffers.total_slot,
+            buffers.tile_subframes,
+            bins.bin_m,
+            bins.n_bins,
+            bins.n_causes,
+            link_rng,
+            sci_rng,
+        )
     return ChunkResult._make(out)
 
 

@@ -8,6 +8,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from cv2x_marl.interrupts import signals_deferred
+
 FloatArray = NDArray[np.float64]
 
 
@@ -97,7 +99,6 @@ def received_powers(
     return mean, out
 
 
-@njit(cache=True)
 def shadowing_update_sparse(
     keys_prev: NDArray[np.int64],
     z_state: FloatArray,
@@ -128,6 +129,24 @@ def shadowing_update_sparse(
     Returns:
         [P] the pairs' unit-variance shadowing.
     """
+    with signals_deferred():  # a Generator argument: see cv2x_marl.interrupts
+        return _shadowing_update_sparse(
+            keys_prev, z_state, last_state, keys, reference, decorrelation_m, pair_distance, rng
+        )
+
+
+@njit(cache=True)
+def _shadowing_update_sparse(
+    keys_prev: NDArray[np.int64],
+    z_state: FloatArray,
+    last_state: FloatArray,
+    keys: NDArray[np.int64],
+    reference: FloatArray,
+    decorrelation_m: float,
+    pair_distance: bool,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """The compiled body of :func:`shadowing_update_sparse`."""
     m = keys.shape[0]
     q = keys_prev.shape[0]
     pos = np.full(m, -1, dtype=np.int64)

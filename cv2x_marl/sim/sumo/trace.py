@@ -78,6 +78,14 @@ def read_trace(path: str | Path) -> Trace:
         t, vid, x, y, ang, spd = _read_fcd_xml(p)
     if t.size == 0:
         raise ConfigError(f"vehicles.trace_file: {p} holds no vehicle positions")
+    for name, values in (("time", t), ("x", x), ("y", y), ("angle", ang), ("speed", spd)):
+        bad = ~np.isfinite(values)
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            raise ConfigError(
+                f"vehicles.trace_file: {p}: {name} = {values[k]} for vehicle {str(vid[k])!r} at t = {t[k]:g} s "
+                f"({int(bad.sum())} such values); times, positions, angles and speeds must be finite numbers"
+            )
     times, ti = np.unique(t, return_inverse=True)
     ids, vi = np.unique(vid, return_inverse=True)
     return Trace(times, [str(v) for v in ids], ti.astype(np.int64), vi.astype(np.int64), x, y, spd, ang)
