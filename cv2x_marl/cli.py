@@ -277,17 +277,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         env_kwargs["replan_every"] = args.replan_every
     env_kwargs.update(ev.parse_env_options(args.env_option or [], ev.EVALUATE_FLAGS))
     policies = ev.expand_policies(args.policy or ["gbmu"])
-    seeds_env = args.env
-    if seeds_env is None and policies[0].startswith("ppo:"):  # the env the model was trained on
-        seeds_env = ev.trained_env_options(Path(policies[0][len("ppo:") :]))[0]
-    seeds = None if args.seeds is None else ev.parse_seeds(args.seeds, seeds_env)
-    if seeds is not None:
-        if args.seed is not None:
-            raise ValueError("--seed does not apply with --seeds (the episodes' seeds are given); drop one of them")
-        if args.episodes is not None:  # the first N of the list, as `benchmark --episodes`
-            if args.episodes > len(seeds):
-                raise ValueError(f"--episodes {args.episodes}: --seeds {args.seeds} gives only {len(seeds)} seeds")
-            seeds = seeds[: args.episodes]
+    seeds = ev.cli_seeds(args.seeds, args.episodes, args.seed, args.env, policies)
     summary = ev.evaluate(
         args.env,
         policies if len(policies) > 1 else policies[0],
@@ -793,5 +783,18 @@ def _inputs(args: argparse.Namespace) -> list[Path]:
     return found
 
 
+def console() -> None:
+    """The ``cv2x-marl`` command: :func:`main`, then exit with its status; a signal that arrives after the command
+    has ended (a second Ctrl-C) ends the process at once with that status (:func:`interrupts.exit_on_signal`)."""
+    status = 1
+    try:
+        status = main()
+    except KeyboardInterrupt:  # a signal while main put its handlers back
+        status = 130
+    finally:
+        interrupts.exit_on_signal(status)
+    sys.exit(status)
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    console()

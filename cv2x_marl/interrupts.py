@@ -25,7 +25,10 @@ main thread every :data:`RETRY_S` seconds until it lands in other code, where it
 from __future__ import annotations
 
 import _thread
+import atexit
+import os
 import signal
+import sys
 import threading
 from types import TracebackType
 from typing import Any
@@ -147,3 +150,41 @@ def restore_handlers(previous: dict[int, Any]) -> None:
     """Put back the handlers :func:`install_safe_handlers` replaced."""
     for sig, handler in previous.items():
         signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
+_exiting: list[int] = []
+
+
+def _ignore_while_finalizing() -> None:
+    """Registered with ``atexit`` when this module is imported (the CLI imports it first), so it runs after the
+    ``atexit`` callbacks of the libraries imported later (torch's among them): from here to the end of the
+    interpreter's shutdown, where Python would reset the handlers to the default action (a kill by the
+    signal, exit -2), a signal is ignored."""
+    if _exiting and threading.current_thread() is threading.main_thread():
+        for sig in HELD:
+            signal.signal(sig, signal.SIG_IGN)
+
+
+atexit.register(_ignore_while_finalizing)
+
+
+def exit_on_signal(status: int) -> None:
+    """Once a command has ended: make SIGINT and SIGTERM end the process at once with ``status`` (stdout and
+    stderr flushed, ``os._exit``) instead of raising ``KeyboardInterrupt`` into the interpreter's shutdown (a
+    second Ctrl-C during ``train`` used to land in torch's ``atexit`` callback); ignored at the very end
+    (:func:`_ignore_while_finalizing`). Main thread only; an ignored signal stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    _exiting.append(status)
+
+    def leave(signum: int, frame: Any) -> None:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError, AttributeError):
+                pass
+        os._exit(status)
+
+    for sig in HELD:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, leave)

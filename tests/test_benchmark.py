@@ -310,6 +310,7 @@ def test_benchmark_over_workers_gives_the_same_rows(tmp_path: Path, monkeypatch:
         yield FakeRay()
 
     monkeypatch.setattr(cv2x_marl.parallel, "ray_session", fake_session)
+    monkeypatch.setattr(cv2x_marl.parallel, "usable_cpus", lambda: 2)  # --workers 2 on any machine
     table = {"singlemover": stand_in_tasks()["singlemover"]}
     kw: dict[str, Any] = {"methods": ["static"], "episodes": 2, "progress": False, "task_table": table}
     benchmark.run_benchmark(tmp_path / "a", workers=2, **kw)

@@ -114,6 +114,27 @@ def parse_seeds(text: str, env_id: str | None) -> tuple[int, ...]:
     return seeds
 
 
+def cli_seeds(
+    text: str | None, episodes: int | None, seed: int | None, env_id: str | None, policies: Sequence[str]
+) -> tuple[int, ...] | None:
+    """``evaluate --seeds`` with ``--episodes`` and ``--seed`` as given (None: not given): the episode seeds, or None
+    without ``--seeds``. ``heldout`` / ``train`` name the lists of ``env_id``'s task, or of the env a ``ppo:PATH``
+    model was trained on; ``--episodes N`` takes the first N seeds (as ``benchmark --episodes``); ``--seed`` is
+    refused with ``--seeds`` (it would be ignored)."""
+    if text is None:
+        return None
+    if env_id is None and policies and policies[0].startswith(PPO_PREFIX):  # the env the model was trained on
+        env_id = trained_env_options(Path(policies[0][len(PPO_PREFIX) :]))[0]
+    seeds = parse_seeds(text, env_id)
+    if seed is not None:
+        raise ValueError("--seed does not apply with --seeds (the episodes' seeds are given); drop one of them")
+    if episodes is not None:
+        if episodes > len(seeds):
+            raise ValueError(f"--episodes {episodes}: --seeds {text} gives only {len(seeds)} seeds")
+        seeds = seeds[:episodes]
+    return seeds
+
+
 def parse_env_options(items: Iterable[str], reserved: dict[str, str] | None = None) -> dict[str, Any]:
     """``--env-option key=value`` items -> ``{key: value}``, values read as YAML scalars or flow lists
     (``3`` -> 3, ``[0, 1]`` -> list, ``null`` -> None). Unknown keys are refused naming the allowed ones
