@@ -144,12 +144,12 @@ def test_loader_and_config_errors(tmp_path: Path, capsys: pytest.CaptureFixture[
     with pytest.raises(TrainError, match="start_pool"):
         train_mappo(MappoConfig(env={"start_pool": -1}), 10, 0, tmp_path / "never", progress=False)
     out = ["--out", str(tmp_path / "never")]
-    assert main(["train", "--config", str(f), "--resume", *out]) == 2  # refused: not resumable
+    assert main(["train", "--config", str(f), "--resume", *out]) == 2  # refused: nothing to resume there
     assert main(["train", "--config", str(f), "--algo", "ppo", *out]) == 2  # the file says mappo
     assert main(["train", "--algo", "sac", *out]) == 2
     assert not (tmp_path / "never").exists()
     err = capsys.readouterr().err
-    assert "not resumable" in err and "differ" in err and "algorithms: ppo, mappo" in err
+    assert "has no train_config.json (nothing to resume)" in err and "differ" in err and "algorithms: ppo, mappo" in err
 
 
 def test_quick_training_beats_random_on_the_team_utility(tmp_path: Path) -> None:
