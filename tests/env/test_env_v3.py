@@ -46,8 +46,8 @@ def test_checkers_and_seeding() -> None:
         runs.append(np.concatenate([x.ravel() for x in out]))
     np.testing.assert_array_equal(runs[0], runs[1])
     for name in ("cv2x/Mobility-v3", "cv2x/Cooperative-v0"):
-        par = pettingzoo.make("parallel", name, max_cycles=6, **FAST) if hasattr(pettingzoo, "make") else None
-        assert par is None or par.layout.version == 3
+        par = pettingzoo.make("parallel", name, max_cycles=6, **FAST)  # pettingzoo >= 1.27 (pyproject's floor)
+        assert par.layout.version == 3
     parallel_api_test(env_module.parallel_env_v3(max_cycles=6, **FAST), num_cycles=12)
     parallel_api_test(env_module.parallel_env_cooperative(max_cycles=6, **FAST), num_cycles=12)
     api_test(env_module.env_cooperative(max_cycles=4, **FAST), num_cycles=8)

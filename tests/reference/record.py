@@ -6,6 +6,8 @@ the data is that the refactored code is compared with the code before it.
 
     PYTHONPATH=$PWD python tests/reference/record.py                 # env trajectories, PRR, held-out slice
     PYTHONPATH=$PWD python tests/reference/record.py env prr         # some parts only
+    PYTHONPATH=$PWD python tests/reference/record.py parts           # test_references_parts.py's cases, recorded
+                                                                     # at 265a803, before the env-as-parts refactor
     PYTHONPATH=$PWD python benchmarks/check_references.py --record   # the full held-out tables (~30 min)
 
 The cases themselves (env ids, options, seeds, presets, policies) are defined in ``test_references.py``
@@ -63,12 +65,28 @@ def record_heldout() -> None:
     (t.DATA / "heldout_slice.json").write_text(json.dumps({"runs": runs}, indent=1) + "\n")
 
 
+def record_parts() -> None:
+    """The references of ``test_references_parts.py`` (the env ids the first set does not cover), recorded
+    before the env is split into parts (``tests/data/reference_38/``)."""
+    import test_references_parts as p
+
+    arrays: dict[str, np.ndarray] = {}
+    for name in p.CASES:
+        t0 = time.perf_counter()
+        for k, v in p.play_case(name).items():
+            arrays[f"{name}/{k}"] = v
+        print(f"parts {name}: {time.perf_counter() - t0:.1f} s", flush=True)
+    p.DATA.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(p.DATA / "trajectories.npz", **arrays)
+    (p.DATA / "cases.json").write_text(json.dumps(p.CASES, indent=1) + "\n")
+
+
 def main() -> None:
     parts = sys.argv[1:] or ["env", "prr", "heldout"]
     t.DATA.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault(t.SUMO_ENV, tempfile.mkdtemp(prefix="sumo-cache-"))
     for part in parts:
-        {"env": record_env, "prr": record_prr, "heldout": record_heldout}[part]()
+        {"env": record_env, "prr": record_prr, "heldout": record_heldout, "parts": record_parts}[part]()
 
 
 if __name__ == "__main__":
