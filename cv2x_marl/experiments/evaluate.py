@@ -172,6 +172,8 @@ def expand_policies(specs: Sequence[str], flag: str = "--policy") -> list[str]:
     sorted matches; a pattern that matches nothing is refused (the error names ``flag``)."""
     out: list[str] = []
     for spec in specs:
+        if spec == PPO_PREFIX:
+            raise ValueError(f"{flag} {spec!r}: no path after {PPO_PREFIX!r}; give {PPO_PREFIX}PATH to a model file")
         if spec.startswith(PPO_PREFIX) and glob.has_magic(spec[len(PPO_PREFIX) :]):
             found = sorted(glob.glob(spec[len(PPO_PREFIX) :]))
             if not found:

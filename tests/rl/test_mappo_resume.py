@@ -19,19 +19,13 @@ from cv2x_marl.cli import main
 from cv2x_marl.rl import mappo as mappo_mod
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo import train_mappo
-from cv2x_marl.rl.mappo_config import MappoConfig, MappoSettings
 from cv2x_marl.rl.train import TrainingInterrupted
 from cv2x_marl.runs import read_manifest
+from tests.rl.test_mappo import TINY as MAPPO_TINY
 
-SCENE = ["vehicles.n_vehicles=8", "sim.warmup_subframes=200"]
-TINY = MappoConfig(
-    copies=2,
-    env={"max_cycles": 10, "max_step_m": 10.0, "start_pool": 8, "overrides": SCENE},
-    mappo=MappoSettings(n_epochs=2, minibatch_steps=5, actor_net=(16,), critic_net=(16,), encoder_units=8),
-    eval_every=1,
-    checkpoint_every=2,
-    eval_episodes=2,
-)
+#: test_mappo.py's tiny run (8 vehicles, 10-step episodes, 2 copies, a row every iteration), checkpointed every
+#: 2 iterations
+TINY = dataclasses.replace(MAPPO_TINY, checkpoint_every=2)
 #: agent-steps of one iteration: 2 copies x 10 steps x 8 agents
 ITERATION = 2 * 10 * 8
 
