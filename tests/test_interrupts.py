@@ -102,6 +102,19 @@ def test_signals_deferred_holds_a_signal_until_the_block_ends_and_puts_the_handl
     assert {sig: signal.getsignal(sig) for sig in interrupts.HELD} == before
 
 
+def test_under_the_cli_handlers_a_block_swaps_nothing_and_the_handler_takes_note() -> None:
+    previous = interrupts.install_safe_handlers()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with interrupts.signals_deferred():
+                assert signal.getsignal(signal.SIGINT) is interrupts.raise_at_a_safe_point  # not swapped
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.01)  # noted by the CLI's handler, not raised here
+        assert signal.getsignal(signal.SIGTERM) is interrupts.raise_at_a_safe_point
+    finally:
+        interrupts.restore_handlers(previous)
+
+
 def test_a_signal_met_in_numba_code_is_raised_again_once_it_has_left() -> None:
     """The CLI's handler: a signal that arrives while numba's (or llvmlite's, ctypes') Python code runs is
     retried from a timer until it lands in other code."""
