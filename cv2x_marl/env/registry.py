@@ -98,16 +98,16 @@ def env_version(env_id: str) -> str:
 def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     """The parallel env behind a registered id with its version's defaults (SingleMover: only
     vehicle 0 moves; Traffic: vehicle 0 drives unless ``movers`` says who does, ``None``: every vehicle);
-    ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults."""
+    ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults. A PettingZoo id gives
+    the object ``pettingzoo.make("parallel", env_id)`` gives (its class and metadata name; tested)."""
     from cv2x_marl.env.mobility_env import MobilityEnv
     from cv2x_marl.env.options import VERSION_DEFAULTS
 
     version = env_version(env_id)
     if env_id in SINGLE_MOVER_IDS:
-        kwargs = {**kwargs, "movers": [0]}
-    elif env_id in TRAFFIC_IDS:
-        kwargs = {"movers": [0], **kwargs}
-    return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs})
+        return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs, "movers": [0]})
+    factory: Callable[..., MobilityEnv] = globals()[f"parallel_env{_PETTINGZOO_SUFFIX[env_id]}"]
+    return factory(**kwargs)
 
 
 # -- PettingZoo factories (the entry points of cv2x/Mobility-vN) ------------------------------------

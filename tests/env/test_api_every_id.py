@@ -33,6 +33,14 @@ def test_every_id_is_registered_in_a_framework_and_aec_with_parallel() -> None:
 
 
 @pytest.mark.parametrize("env_id", PETTINGZOO_IDS)
+def test_make_parallel_env_builds_what_pettingzoo_make_builds(env_id: str) -> None:
+    ours = make_parallel_env(env_id, max_cycles=3, **FAST)
+    theirs = pettingzoo.make("parallel", env_id, max_cycles=3, **FAST)
+    assert type(ours) is type(theirs) and ours.metadata["name"] == theirs.metadata["name"]
+    assert ours.metadata["name"] == "cv2x_" + env_id.split("/")[1].lower().replace("-", "_")
+
+
+@pytest.mark.parametrize("env_id", PETTINGZOO_IDS)
 def test_pettingzoo_parallel_aec_and_seed_tests(env_id: str) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
