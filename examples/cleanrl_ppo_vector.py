@@ -79,7 +79,7 @@ def main() -> None:
         autoreset_mode="SameStep",
         **env_kwargs,
     )
-    print(f"{type(envs).__name__} with {envs.num_envs} copies, batched step: {envs.batched}")
+    print(f"{type(envs).__name__} of {envs.env_id} with {envs.num_envs} copies, batched step: {envs.batched}")
     obs_dim = envs.single_observation_space.shape[0]
     agent = build_agent(obs_dim, 128)
     optimiser = torch.optim.Adam(agent.parameters(), lr=3e-4, eps=1e-5)

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
         (
             "cleanrl_ppo_vector.py",
             [
-                "SingleMoverVectorEnvV2 with 4 copies, batched step: True",
+                "SingleMoverVectorEnv of cv2x/SingleMover-v2 with 4 copies, batched step: True",
                 "iteration 1:",
                 "GBMU         utility gain +10.0%",
             ],

@@ -12,7 +12,9 @@
                                                  ``movers=None`` every vehicle, commands its speed and lane)
     parallel_env_traffic_v1 / env_traffic_v1     ``cv2x/Traffic-v1`` (the same, observation version 4: measured)
 
-The ids, the factories and their registration are :mod:`cv2x_marl.env.registry`'s: ``import
+The ids (one table, :data:`cv2x_marl.env.registry.SPECS`), the factories (``functools.partial`` of
+:func:`make_parallel_env` / :func:`make_aec_env` on the id, :data:`~cv2x_marl.env.registry.FACTORIES`) and their
+registration are :mod:`cv2x_marl.env.registry`'s: ``import
 cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0``, ``cv2x/Traffic-v0`` / ``-v1``
 (``pettingzoo.make("parallel", ...)`` and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium
 envs ``cv2x/SingleMover-v0`` .. ``-v3`` and ``cv2x/Traffic-v0``. :class:`MobilityEnv` and
@@ -25,23 +27,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from cv2x_marl.env.registry import (
-    env,
-    env_cooperative,
-    env_traffic,
-    env_traffic_v1,
-    env_v1,
-    env_v2,
-    env_v3,
-    parallel_env,
-    parallel_env_cooperative,
-    parallel_env_traffic,
-    parallel_env_traffic_v1,
-    parallel_env_v1,
-    parallel_env_v2,
-    parallel_env_v3,
-    raw_env,
-)
+from cv2x_marl.env.registry import FACTORIES, make_aec_env, make_parallel_env, raw_env
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -54,25 +40,9 @@ _LAZY = {"MobilityEnv": "cv2x_marl.env.mobility_env", "ObservationLayout": "cv2x
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if name in FACTORIES:  # parallel_env, env_v3, parallel_env_cooperative, ... (registry.FACTORIES)
+        return FACTORIES[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = [
-    "MobilityEnv",
-    "ObservationLayout",
-    "env",
-    "env_cooperative",
-    "env_traffic",
-    "env_traffic_v1",
-    "env_v1",
-    "env_v2",
-    "env_v3",
-    "parallel_env",
-    "parallel_env_cooperative",
-    "parallel_env_traffic",
-    "parallel_env_traffic_v1",
-    "parallel_env_v1",
-    "parallel_env_v2",
-    "parallel_env_v3",
-    "raw_env",
-]
+__all__ = ["MobilityEnv", "ObservationLayout", "make_aec_env", "make_parallel_env", "raw_env", *sorted(FACTORIES)]

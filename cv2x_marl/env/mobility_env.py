@@ -33,10 +33,6 @@ from cv2x_marl.env.observation import (
     fill_own_v3,
 )
 from cv2x_marl.env.options import (
-    COOPERATIVE_DEFAULTS,
-    V1_DEFAULTS,
-    V2_DEFAULTS,
-    V3_DEFAULTS,
     EnvOptions,
 )
 from cv2x_marl.env.planning import (
@@ -748,53 +744,3 @@ class MobilityEnv(ParallelEnv):
 
             plt.close(self._fig)
             self._fig = None
-
-
-class MobilityEnvV1(MobilityEnv):
-    """``cv2x/Mobility-v1``: :class:`MobilityEnv` with :data:`V1_DEFAULTS` (observation version 1,
-    improvement rewards per target receiver); keyword arguments as :class:`MobilityEnv`."""
-
-    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v1"}
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**{**V1_DEFAULTS, **kwargs})
-
-
-def mobility_v1(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v1`` (:class:`MobilityEnvV1`)."""
-    return MobilityEnvV1(**kwargs)
-
-
-class MobilityEnvV2(MobilityEnv):
-    """``cv2x/Mobility-v2``: :class:`MobilityEnv` with :data:`V2_DEFAULTS`; keyword arguments as
-    :class:`MobilityEnv`."""
-
-    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v2"}
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**{**V2_DEFAULTS, **kwargs})
-
-
-def mobility_v2(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v2`` (:class:`MobilityEnvV2`)."""
-    return MobilityEnvV2(**kwargs)
-
-
-class MobilityEnvV3(MobilityEnv):
-    """``cv2x/Mobility-v3``: :class:`MobilityEnv` with :data:`V3_DEFAULTS` (plan-free observation version 3,
-    shadowing that follows the vehicles); keyword arguments as :class:`MobilityEnv`."""
-
-    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_mobility_v3"}
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**{**V3_DEFAULTS, **kwargs})
-
-
-class CooperativeEnv(MobilityEnv):
-    """``cv2x/Cooperative-v0``: every vehicle moves for the team objective (:data:`COOPERATIVE_DEFAULTS`:
-    v3 with ``reward="team"``); keyword arguments as :class:`MobilityEnv`."""
-
-    metadata: ClassVar[dict[str, Any]] = {**MobilityEnv.metadata, "name": "cv2x_cooperative_v0"}
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**{**COOPERATIVE_DEFAULTS, **kwargs})

@@ -1,28 +1,30 @@
-"""The env ids, their versions, the factories behind them and their registration, in one place.
+"""The env ids in one table (:data:`SPECS`), and everything derived from it: the parallel env of an id
+(:func:`make_parallel_env`, the one way every route builds it), the PettingZoo factories (:data:`FACTORIES`) and
+the Gymnasium / PettingZoo registration. The defaults of each id are
+:data:`cv2x_marl.env.options.VERSION_DEFAULTS`:
 
-Two families of four versions each, and the cooperative task (the defaults of each are
-:data:`cv2x_marl.env.options.VERSION_DEFAULTS`):
-
-    cv2x/Mobility-vN      PettingZoo, every mover an agent (:class:`~cv2x_marl.env.mobility_env.MobilityEnv`)
-    cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:mod:`cv2x_marl.env.single`); vectorised
-                          by :mod:`cv2x_marl.env.vector` (``gymnasium.make_vec(..., "vector_entry_point")``)
+    cv2x/Mobility-vN      PettingZoo, every mover an agent
+    cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:class:`~cv2x_marl.env.single.SingleMoverEnv`);
+                          batched by :class:`~cv2x_marl.env.vector.SingleMoverVectorEnv`
+                          (``gymnasium.make_vec(..., "vector_entry_point")``)
     cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
-    cv2x/Traffic-v0       Gymnasium, vehicles drive (lane model), vehicle 0 commands its speed and lane
-                          (:class:`~cv2x_marl.env.single.TrafficEnv`); also PettingZoo
-                          (:class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnv`: every vehicle an agent,
-                          vehicle 0 drives, ``movers=None``: every vehicle drives)
-    cv2x/Traffic-v1       Traffic-v0 observing what the mover measured on the road (observation version 4:
-                          RSRP, SCI resources, own SPS state; :class:`~cv2x_marl.env.single.TrafficEnvV1`);
-                          also PettingZoo (:class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnvV1`)
+    cv2x/Traffic-v0       Gymnasium and PettingZoo: vehicles drive (lane model), vehicle 0 commands its speed and
+                          lane (``movers=None`` in PettingZoo: every vehicle drives its own)
+    cv2x/Traffic-v1       Traffic-v0 observing what the mover measured on the road (observation version 4)
+
+Every id is one :class:`~cv2x_marl.env.mobility_env.MobilityEnv` with the id's options and metadata name; the
+Gymnasium ids are :class:`~cv2x_marl.env.single.SingleMoverEnv` with ``env_id`` (registered with
+``kwargs={"env_id": ...}``), the PettingZoo ids :func:`make_parallel_env` / :func:`make_aec_env` with ``env_id``.
+Adding an id is a row of :data:`SPECS` (and its defaults in ``VERSION_DEFAULTS``).
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
 ``cv2x_marl`` (and starting the CLI) imports neither (about 0.2 s). Entry points are import strings,
 so a fresh process (a Ray worker, a subprocess) resolves the Gymnasium ids with
 ``gymnasium.make("cv2x_marl:cv2x/SingleMover-v2")``, which imports the package first; PettingZoo has
-no such syntax: frameworks take the factories (:func:`parallel_env`, :func:`parallel_env_v1` ..
-:func:`parallel_env_v3`, :func:`parallel_env_cooperative`, :func:`parallel_env_traffic`, re-exported by
-:mod:`cv2x_marl.env`) instead.
+no such syntax: frameworks take the factories (``parallel_env``, ``parallel_env_v1`` .. ``parallel_env_v3``,
+``parallel_env_cooperative``, ``parallel_env_traffic``, ``parallel_env_traffic_v1`` and their AEC ``env*``, also
+attributes of :mod:`cv2x_marl.env`) instead.
 
 This module imports only the standard library at its top, so the CLI reads :data:`ENV_IDS` for its
 ``--env`` choices without importing the env (about 0.9 s measured: PettingZoo, numba, the simulator);
@@ -31,193 +33,194 @@ the factories import :mod:`cv2x_marl.env.mobility_env` when called.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.abc
 import importlib.machinery
 import importlib.util
 import sys
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
-#: the env versions (observation version, reward form: :data:`~cv2x_marl.env.mobility_env.VERSION_DEFAULTS`)
-VERSIONS = ("v0", "v1", "v2", "v3")
-#: the PettingZoo ids (every mover an agent)
-MOBILITY_IDS = tuple(f"cv2x/Mobility-{v}" for v in VERSIONS)
-#: the Gymnasium ids (vehicle 0 the only mover)
-SINGLE_MOVER_IDS = tuple(f"cv2x/SingleMover-{v}" for v in VERSIONS)
-#: the cooperative task (PettingZoo; every vehicle moves, team reward)
-COOPERATIVE_IDS = ("cv2x/Cooperative-v0",)
-#: the traffic task (Gymnasium and PettingZoo; vehicle 0 drives with speed and lane commands), and its
-#: variant observing what the mover measured
-TRAFFIC_IDS = ("cv2x/Traffic-v0", "cv2x/Traffic-v1")
-#: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
-ENV_IDS = (
-    *(i for pair in zip(MOBILITY_IDS, SINGLE_MOVER_IDS, strict=True) for i in pair),
-    *COOPERATIVE_IDS,
-    *TRAFFIC_IDS,
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """One registered env id: its registrations, :func:`make_parallel_env`, the factories and the tests derive
+    from this row of :data:`SPECS`.
+
+    Attributes:
+        env_id: the id (``cv2x/<Family>-v<N>``).
+        defaults: its key in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (the options it fixes).
+        frameworks: where it is registered: ``gymnasium`` (vehicle 0's view, :class:`~cv2x_marl.env.single.
+            SingleMoverEnv`), ``pettingzoo`` (every vehicle an agent, parallel and AEC).
+        movers: who moves: ``arguments`` (``movers``; default every vehicle), ``vehicle0`` (always vehicle 0;
+            ``movers`` refused by the Gymnasium env, overridden by :func:`make_parallel_env`), ``vehicle0-default``
+            (vehicle 0 unless ``movers`` says who; ``None``: every vehicle).
+        factory: the suffix of its PettingZoo factories in :mod:`cv2x_marl.env` (``parallel_env{factory}``,
+            ``env{factory}``); None: none (a Gymnasium-only id).
+        vector: whether Gymnasium's ``vector_entry_point`` batches K copies (:mod:`cv2x_marl.env.vector`).
+        summary: one line for listings.
+    """
+
+    env_id: str
+    defaults: str
+    frameworks: tuple[str, ...]
+    movers: str
+    factory: str | None
+    vector: bool
+    summary: str
+
+    @property
+    def name(self) -> str:
+        """The metadata name (``cv2x_<family>_v<N>``)."""
+        return "cv2x_" + self.env_id.split("/", 1)[1].lower().replace("-", "_")
+
+
+def _versions(family: str, frameworks: tuple[str, ...], movers: str, vector: bool, summary: str) -> list[EnvSpec]:
+    return [
+        EnvSpec(
+            f"cv2x/{family}-{v}",
+            v,
+            frameworks,
+            movers,
+            ("" if v == "v0" else f"_{v}") if "pettingzoo" in frameworks else None,
+            vector,
+            f"{summary}, {text}",
+        )
+        for v, text in (
+            ("v0", "the paper's observation"),
+            ("v1", "observation version 1, improvement rewards"),
+            ("v2", "observation version 2 (the sensing plan), improvement rewards"),
+            ("v3", "plan-free observation version 3, shadowing that follows the movers"),
+        )
+    ]
+
+
+#: every registered id, oldest family and version first (the CLI lists them newest first)
+SPECS: tuple[EnvSpec, ...] = (
+    *(
+        s
+        for pair in zip(
+            _versions("Mobility", ("pettingzoo",), "arguments", False, "PettingZoo, every mover an agent"),
+            _versions("SingleMover", ("gymnasium",), "vehicle0", True, "Gymnasium, vehicle 0 the only mover"),
+            strict=True,
+        )
+        for s in pair
+    ),
+    EnvSpec(
+        "cv2x/Cooperative-v0",
+        "cooperative-v0",
+        ("pettingzoo",),
+        "arguments",
+        "_cooperative",
+        False,
+        "PettingZoo, every vehicle moves for the team objective (observation version 3)",
+    ),
+    EnvSpec(
+        "cv2x/Traffic-v0",
+        "traffic-v0",
+        ("gymnasium", "pettingzoo"),
+        "vehicle0-default",
+        "_traffic",
+        False,
+        "vehicles drive the lane model, vehicle 0 commands its speed and lane",
+    ),
+    EnvSpec(
+        "cv2x/Traffic-v1",
+        "traffic-v1",
+        ("gymnasium", "pettingzoo"),
+        "vehicle0-default",
+        "_traffic_v1",
+        False,
+        "Traffic-v0 observing what the mover measured on the road (observation version 4)",
+    ),
 )
+#: the rows of :data:`SPECS` by id
+SPEC: Mapping[str, EnvSpec] = MappingProxyType({s.env_id: s for s in SPECS})
+#: every id, oldest version first (the CLI lists them newest first: ``ENV_IDS[::-1]``)
+ENV_IDS = tuple(SPEC)
+#: the env versions of the Mobility / SingleMover families
+VERSIONS = ("v0", "v1", "v2", "v3")
+#: the PettingZoo ids of the Mobility family (every mover an agent)
+MOBILITY_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Mobility-"))
+#: the Gymnasium ids of the SingleMover family (vehicle 0 the only mover)
+SINGLE_MOVER_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/SingleMover-"))
+#: the cooperative task (PettingZoo; every vehicle moves, team reward)
+COOPERATIVE_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Cooperative-"))
+#: the traffic task and its variant observing what the mover measured (Gymnasium and PettingZoo)
+TRAFFIC_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Traffic-"))
 #: the id commands run when none is given
 DEFAULT_ENV_ID = "cv2x/SingleMover-v2"
-#: Gymnasium classes per version: (entry point in :mod:`cv2x_marl.env.single`, vector entry point
-#: in :mod:`cv2x_marl.env.vector`)
-_GYM_CLASSES = {
-    "v0": ("SingleMoverEnv", "SingleMoverVectorEnv"),
-    "v1": ("SingleMoverEnvV1", "SingleMoverVectorEnvV1"),
-    "v2": ("SingleMoverEnvV2", "SingleMoverVectorEnvV2"),
-    "v3": ("SingleMoverEnvV3", "SingleMoverVectorEnvV3"),
-}
-#: the Gymnasium classes of the traffic ids (in :mod:`cv2x_marl.env.single`)
-_TRAFFIC_CLASSES = {"cv2x/Traffic-v0": "TrafficEnv", "cv2x/Traffic-v1": "TrafficEnvV1"}
-#: PettingZoo ids -> the suffix of their factories in :mod:`cv2x_marl.env` (``parallel_env{suffix}``, ``env{suffix}``)
-_PETTINGZOO_SUFFIX = {
-    **{i: ("" if v == "v0" else f"_{v}") for v, i in zip(VERSIONS, MOBILITY_IDS, strict=True)},
-    "cv2x/Cooperative-v0": "_cooperative",
-    "cv2x/Traffic-v0": "_traffic",
-    "cv2x/Traffic-v1": "_traffic_v1",
-}
+
+
+def spec_of(env_id: str) -> EnvSpec:
+    """The row of a registered id; an unknown id is refused with the list."""
+    if env_id not in SPEC:
+        raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
+    return SPEC[env_id]
 
 
 def env_version(env_id: str) -> str:
     """The key of a registered id's defaults in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (``v0`` ..
-    ``v3``; ``cooperative-v0`` for ``cv2x/Cooperative-v0``, ``traffic-v0`` / ``traffic-v1`` for ``cv2x/Traffic-v0`` /
-    ``-v1``); unknown
-    ids are refused with the list."""
-    if env_id not in ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; ids: {', '.join(ENV_IDS)}")
-    if env_id in COOPERATIVE_IDS:
-        return "cooperative-" + env_id.rsplit("-", 1)[1]
-    if env_id in TRAFFIC_IDS:
-        return "traffic-" + env_id.rsplit("-", 1)[1]
-    return env_id.rsplit("-", 1)[1]
+    ``v3``; ``cooperative-v0``; ``traffic-v0`` / ``traffic-v1``); unknown ids are refused with the list."""
+    return spec_of(env_id).defaults
 
 
 def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
-    """The parallel env behind a registered id with its version's defaults (SingleMover: only
-    vehicle 0 moves; Traffic: vehicle 0 drives unless ``movers`` says who does, ``None``: every vehicle);
-    ``kwargs`` as :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, over the defaults. A PettingZoo id gives
-    the object ``pettingzoo.make("parallel", env_id)`` gives (its class and metadata name; tested)."""
+    """The parallel env of a registered id (what ``pettingzoo.make("parallel", env_id)`` builds, and what the
+    Gymnasium id wraps): :class:`~cv2x_marl.env.mobility_env.MobilityEnv` with the id's defaults, its movers
+    (:attr:`EnvSpec.movers`) and its metadata name; ``kwargs`` as ``MobilityEnv``, over the defaults."""
     from cv2x_marl.env.mobility_env import MobilityEnv
     from cv2x_marl.env.options import VERSION_DEFAULTS
 
-    version = env_version(env_id)
-    if env_id in SINGLE_MOVER_IDS:
-        return MobilityEnv(**{**VERSION_DEFAULTS[version], **kwargs, "movers": [0]})
-    factory: Callable[..., MobilityEnv] = globals()[f"parallel_env{_PETTINGZOO_SUFFIX[env_id]}"]
-    return factory(**kwargs)
+    spec = spec_of(env_id)
+    options = {**VERSION_DEFAULTS[spec.defaults]}
+    if spec.movers == "vehicle0-default":
+        options["movers"] = [0]
+    options.update(kwargs)
+    if spec.movers == "vehicle0":
+        options["movers"] = [0]
+    env = MobilityEnv(**options)
+    env.metadata = {**MobilityEnv.metadata, "name": spec.name}  # type: ignore[misc]  # per id, on the instance
+    return env
 
 
-# -- PettingZoo factories (the entry points of cv2x/Mobility-vN) ------------------------------------
+def make_aec_env(env_id: str, **kwargs: Any) -> Any:
+    """The AEC version of :func:`make_parallel_env` with PettingZoo's order-enforcing wrapper (``parallel_to_aec``)."""
+    from pettingzoo.utils.conversions import parallel_to_aec
 
-
-def parallel_env(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v0``: the ParallelEnv; keyword arguments as :class:`MobilityEnv`."""
-    from cv2x_marl.env.mobility_env import MobilityEnv
-
-    return MobilityEnv(**kwargs)
-
-
-def parallel_env_v1(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v1``: the ParallelEnv with observation version 1 and improvement rewards."""
-    from cv2x_marl.env.mobility_env import mobility_v1
-
-    return mobility_v1(**kwargs)
-
-
-def parallel_env_v2(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v2``: the ParallelEnv with observation version 2 and improvement rewards."""
-    from cv2x_marl.env.mobility_env import mobility_v2
-
-    return mobility_v2(**kwargs)
-
-
-def parallel_env_v3(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Mobility-v3``: the ParallelEnv with the plan-free observation version 3 and the shadowing field."""
-    from cv2x_marl.env.mobility_env import MobilityEnvV3
-
-    return MobilityEnvV3(**kwargs)
-
-
-def parallel_env_cooperative(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Cooperative-v0``: every vehicle moves, reward the team objective, observation version 3."""
-    from cv2x_marl.env.mobility_env import CooperativeEnv
-
-    return CooperativeEnv(**kwargs)
-
-
-def parallel_env_traffic(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Traffic-v0`` as a ParallelEnv: vehicles drive the lane model, vehicle 0 commands its speed and lane
-    (``movers=None``: every vehicle drives its own, each rewarded with its own period utility)."""
-    from cv2x_marl.env.traffic_parallel import TrafficParallelEnv
-
-    return TrafficParallelEnv(**kwargs)
-
-
-def parallel_env_traffic_v1(**kwargs: Any) -> MobilityEnv:
-    """``cv2x/Traffic-v1`` as a ParallelEnv: ``cv2x/Traffic-v0`` with observation version 4 (what each agent
-    measured on the road); ``movers`` as :func:`parallel_env_traffic`."""
-    from cv2x_marl.env.traffic_parallel import TrafficParallelEnvV1
-
-    return TrafficParallelEnvV1(**kwargs)
+    return parallel_to_aec(make_parallel_env(env_id, **kwargs))
 
 
 def raw_env(**kwargs: Any) -> Any:
     """AEC version of ``cv2x/Mobility-v0`` without wrappers."""
     from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 
-    return parallel_to_aec_wrapper(parallel_env(**kwargs))
+    return parallel_to_aec_wrapper(make_parallel_env("cv2x/Mobility-v0", **kwargs))
 
 
-def env(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Mobility-v0`` with the order-enforcing wrapper (what ``parallel_to_aec`` returns)."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env(**kwargs))
-
-
-def env_v1(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Mobility-v1`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_v1(**kwargs))
+#: the PettingZoo factories by name (``parallel_env{suffix}``, ``env{suffix}`` of :attr:`EnvSpec.factory`): what
+#: frameworks without a registry take (RLlib, TorchRL); module attributes of this module and of :mod:`cv2x_marl.env`
+FACTORIES: Mapping[str, Callable[..., Any]] = MappingProxyType(
+    {
+        f"{kind}{s.factory}": functools.partial(make, s.env_id)
+        for s in SPECS
+        if s.factory is not None
+        for kind, make in (("parallel_env", make_parallel_env), ("env", make_aec_env))
+    }
+)
 
 
-def env_v2(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Mobility-v2`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_v2(**kwargs))
-
-
-def env_v3(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Mobility-v3`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_v3(**kwargs))
-
-
-def env_cooperative(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Cooperative-v0`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_cooperative(**kwargs))
-
-
-def env_traffic(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Traffic-v0`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_traffic(**kwargs))
-
-
-def env_traffic_v1(**kwargs: Any) -> Any:
-    """AEC version of ``cv2x/Traffic-v1`` with the order-enforcing wrapper."""
-    from pettingzoo.utils.conversions import parallel_to_aec
-
-    return parallel_to_aec(parallel_env_traffic_v1(**kwargs))
+def __getattr__(name: str) -> Any:
+    if name in FACTORIES:
+        return FACTORIES[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # -- registration -----------------------------------------------------------------------------------
@@ -226,27 +229,28 @@ def env_traffic_v1(**kwargs: Any) -> Any:
 def _register_gymnasium() -> None:
     import gymnasium
 
-    for version, env_id in zip(VERSIONS, SINGLE_MOVER_IDS, strict=True):
-        cls, vector_cls = _GYM_CLASSES[version]
-        if env_id not in gymnasium.registry:
+    for spec in SPECS:
+        if "gymnasium" in spec.frameworks and spec.env_id not in gymnasium.registry:
             gymnasium.register(
-                id=env_id,
-                entry_point=f"cv2x_marl.env.single:{cls}",
-                vector_entry_point=f"cv2x_marl.env.vector:{vector_cls}",
+                id=spec.env_id,
+                entry_point="cv2x_marl.env.single:SingleMoverEnv",
+                vector_entry_point="cv2x_marl.env.vector:SingleMoverVectorEnv" if spec.vector else None,
+                kwargs={"env_id": spec.env_id},
             )
-    for env_id in TRAFFIC_IDS:
-        if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=f"cv2x_marl.env.single:{_TRAFFIC_CLASSES[env_id]}")
 
 
 def _register_pettingzoo() -> None:
     import pettingzoo
 
-    for env_id, suffix in _PETTINGZOO_SUFFIX.items():
-        for kind, entry in (("parallel", f"cv2x_marl.env:parallel_env{suffix}"), ("aec", f"cv2x_marl.env:env{suffix}")):
+    for spec in SPECS:
+        if "pettingzoo" not in spec.frameworks:
+            continue
+        for kind, entry in (("parallel", "make_parallel_env"), ("aec", "make_aec_env")):
             registry = pettingzoo.parallel_registry if kind == "parallel" else pettingzoo.aec_registry
-            if env_id not in registry:
-                pettingzoo.register(kind, env_id, entry_point=entry)
+            if spec.env_id not in registry:
+                pettingzoo.register(
+                    kind, spec.env_id, entry_point=f"cv2x_marl.env.registry:{entry}", kwargs={"env_id": spec.env_id}
+                )
 
 
 class _RegisterAfter(importlib.abc.Loader):

@@ -1,8 +1,9 @@
-"""``cv2x/SingleMover-v0`` .. ``-v3``: the paper's own setting as a single-agent Gymnasium env.
+"""The Gymnasium ids (``cv2x/SingleMover-v0`` .. ``-v3``, ``cv2x/Traffic-v0`` / ``-v1``): vehicle 0's view of the
+id's parallel env.
 
-Vehicle 0 moves; every other vehicle stays where the snapshot put it. Observation, action,
-reward and info are vehicle 0's in :class:`cv2x_marl.env.MobilityEnv` with ``movers=[0]``
-(``-v1``, ``-v2``, ``-v3``: with :data:`~cv2x_marl.env.options.V1_DEFAULTS`, ``V2_DEFAULTS``, ``V3_DEFAULTS``).
+Vehicle 0 moves (SingleMover: every other vehicle stays where the snapshot put it; Traffic: the others drive).
+Observation, action, reward and info are vehicle 0's in the parallel env of the same id
+(:func:`cv2x_marl.env.registry.make_parallel_env`, with ``movers=[0]``).
 """
 
 from __future__ import annotations
@@ -13,29 +14,28 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from cv2x_marl.env.mobility_env import MobilityEnv
-from cv2x_marl.env.options import VERSION_DEFAULTS
+from cv2x_marl.env.registry import SPECS, make_parallel_env, spec_of
 
 AGENT = "vehicle_0"
 
 
 class SingleMoverEnv(gym.Env):
-    """Single-agent view of :class:`MobilityEnv` (keyword arguments are passed on)."""
+    """Vehicle 0's view of the parallel env of a Gymnasium id (:func:`~cv2x_marl.env.registry.make_parallel_env`;
+    the other keyword arguments are passed on): every ``cv2x/SingleMover-v*`` and ``cv2x/Traffic-v*`` id is this
+    class with its ``env_id`` (``gymnasium.register(..., kwargs={"env_id": ...})``)."""
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}  # noqa: RUF012 - Gymnasium declares it so
 
-    version = 0
-    #: the key of the id's defaults in :data:`VERSION_DEFAULTS` (None: ``v{version}``)
-    defaults: str | None = None
-    #: the id's name in messages (None: ``SingleMover-v{version}``)
-    label: str | None = None
-
-    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(self, env_id: str = "cv2x/SingleMover-v0", render_mode: str | None = None, **kwargs: Any) -> None:
+        spec = spec_of(env_id)
+        if "gymnasium" not in spec.frameworks:
+            gym_ids = ", ".join(s.env_id for s in SPECS if "gymnasium" in s.frameworks)
+            raise ValueError(f"invalid env_id {env_id!r}: not a Gymnasium id; allowed: {gym_ids}")
         if "movers" in kwargs:
-            label = self.label or f"SingleMover-v{self.version}"
-            raise ValueError(f"invalid env argument movers: {label} always moves vehicle 0")
-        kwargs = {**VERSION_DEFAULTS[self.defaults or f"v{self.version}"], **kwargs}
-        self.par = MobilityEnv(movers=[0], render_mode=render_mode, **kwargs)
+            raise ValueError(f"invalid env argument movers: {env_id.split('/', 1)[1]} always moves vehicle 0")
+        #: the registered id (:data:`cv2x_marl.env.registry.SPECS`)
+        self.env_id = env_id
+        self.par = make_parallel_env(env_id, render_mode=render_mode, **kwargs, movers=[0])
         self.render_mode = render_mode
         self.observation_space = self.par.observation_space(AGENT)
         self.action_space = self.par.action_space(AGENT)
@@ -103,49 +103,3 @@ def follow_time_limit(env: gym.Env) -> gym.Env:
     if isinstance(layer, gym.wrappers.TimeLimit) and isinstance(env.unwrapped, SingleMoverEnv):
         env.unwrapped.time_limit = int(layer._max_episode_steps)
     return env
-
-
-class SingleMoverEnvV1(SingleMoverEnv):
-    """``cv2x/SingleMover-v1``: observation version 1 and improvement rewards (see ``docs/env.md``)."""
-
-    version = 1
-
-
-class SingleMoverEnvV2(SingleMoverEnv):
-    """``cv2x/SingleMover-v2``: observation version 2 (the plan from the mover's sensing estimate) and
-    improvement rewards (see ``docs/env.md``)."""
-
-    version = 2
-
-
-class SingleMoverEnvV3(SingleMoverEnv):
-    """``cv2x/SingleMover-v3``: plan-free observation version 3 (measured RSRP, resources, interferers),
-    shadowing that follows the mover, improvement rewards (see ``docs/env.md``). The observation's time
-    left follows a shorter Gymnasium ``TimeLimit`` (``spec.max_episode_steps``) when one is in force."""
-
-    version = 3
-
-
-class TrafficEnv(SingleMoverEnv):
-    """``cv2x/Traffic-v0``: vehicles drive the lane model and SPS runs one 100-ms period per step with live
-    reselections; vehicle 0 commands its speed (``action[0]``: a target in [0, the speed limit], reached
-    within ``accel_mps2`` / ``decel_mps2``) and its lane (``action[1]`` > 0.5 / < -0.5: one lane left /
-    right, where one exists); the reward is the period's eq. 12 utility of its actual transmissions per
-    target receiver; the observation is v0's block plus the driving entries; the infos carry the episode's
-    means (:data:`~cv2x_marl.env.options.TRAFFIC_DEFAULTS`, ``docs/env.md``). ``preset="sumo-grid"``: SUMO
-    drives instead of the lane model; the same id in PettingZoo is
-    :class:`~cv2x_marl.env.traffic_parallel.TrafficParallelEnv`."""
-
-    defaults = "traffic-v0"
-    label = "Traffic-v0"
-
-
-class TrafficEnvV1(TrafficEnv):
-    """``cv2x/Traffic-v1``: :class:`TrafficEnv` (the same driving, SPS periods, reward and infos) observing what
-    the mover measured on the road, observation version 4 (:data:`~cv2x_marl.env.options.TRAFFIC_V1_DEFAULTS`;
-    :mod:`cv2x_marl.env.traffic_measurement`): per neighbour the RSRP over its sensing window of the packets it
-    decoded, the measurement's age, the resource and reselection announcement of the last SCI it decoded; its
-    own resource and reselection counter; the utility and its change; the driving entries (``docs/env.md``)."""
-
-    defaults = "traffic-v1"
-    label = "Traffic-v1"

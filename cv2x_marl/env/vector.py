@@ -2,8 +2,8 @@
 
     envs = gymnasium.make_vec("cv2x/SingleMover-v2", num_envs=16, vectorization_mode="vector_entry_point")
 
-returns a :class:`SingleMoverVectorEnv` (``-v1``: :class:`SingleMoverVectorEnvV1`, ``-v2``:
-:class:`SingleMoverVectorEnvV2`, ``-v3``: :class:`SingleMoverVectorEnvV3`). It follows Gymnasium's vector
+returns a :class:`SingleMoverVectorEnv` of the id's copies (registered with ``kwargs={"env_id": ...}``). It
+follows Gymnasium's vector
 API like ``SyncVectorEnv`` over the same single-agent envs, and gives the same results bit for bit
 (``tests/env/test_vector.py``):
 
@@ -33,7 +33,7 @@ a loop over copies), and :attr:`SingleMoverVectorEnv.batched` says which.
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -44,7 +44,7 @@ from cv2x_marl.checks import is_int
 from cv2x_marl.env import starts
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
 from cv2x_marl.env.mover_batch import MoverBatch, _signature, batch_problem, refuse_episode_method
-from cv2x_marl.env.single import AGENT, SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2, SingleMoverEnvV3
+from cv2x_marl.env.single import AGENT, SingleMoverEnv
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
 
@@ -56,18 +56,18 @@ KEPT_STARTS: OrderedDict[tuple[Any, ...], tuple[dict[str, Any], NDArray[np.float
 
 
 class SingleMoverVectorEnv(VectorEnv):
-    """K copies of ``cv2x/SingleMover-v0`` as one Gymnasium ``VectorEnv`` (module docstring).
+    """K copies of a ``cv2x/SingleMover-v*`` id as one Gymnasium ``VectorEnv`` (module docstring).
 
     Args:
         num_envs: K, the number of copies.
         autoreset_mode: ``NextStep`` (default), ``SameStep`` or ``Disabled`` (or the
             :class:`gymnasium.vector.AutoresetMode`).
         render_mode: passed to every copy (rendering turns the batched step off).
+        env_id: the copies' id (:class:`~cv2x_marl.env.single.SingleMoverEnv`).
         **kwargs: env arguments of :class:`~cv2x_marl.env.mobility_env.MobilityEnv`, the same for
             every copy (``max_cycles``, ``overrides``, ...).
     """
 
-    single_env: ClassVar[type[SingleMoverEnv]] = SingleMoverEnv
     metadata: dict[str, Any] = {  # noqa: RUF012 - Gymnasium declares it so (per instance: the autoreset mode)
         "render_modes": ["rgb_array", "human"],
         "render_fps": 10,
@@ -80,6 +80,7 @@ class SingleMoverVectorEnv(VectorEnv):
         *,
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
         render_mode: str | None = None,
+        env_id: str = "cv2x/SingleMover-v0",
         **kwargs: Any,
     ) -> None:
         if not is_int(num_envs) or num_envs < 1:
@@ -88,9 +89,14 @@ class SingleMoverVectorEnv(VectorEnv):
             mode = autoreset_mode if isinstance(autoreset_mode, AutoresetMode) else AutoresetMode(autoreset_mode)
         except ValueError:
             raise ValueError(f"invalid autoreset_mode={autoreset_mode!r}; allowed: {_MODES}") from None
-        first = self.single_env(render_mode=render_mode, **kwargs)
+        first = SingleMoverEnv(env_id, render_mode=render_mode, **kwargs)
         check_copies(first.par, int(num_envs))
-        self.envs = [first, *(self.single_env(render_mode=render_mode, **kwargs) for _ in range(int(num_envs) - 1))]
+        self.envs = [
+            first,
+            *(SingleMoverEnv(env_id, render_mode=render_mode, **kwargs) for _ in range(int(num_envs) - 1)),
+        ]
+        #: the registered id of the copies
+        self.env_id = env_id
         self.num_envs = int(num_envs)
         self.autoreset_mode = mode
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
@@ -317,22 +323,3 @@ def _settings_of(par: Any) -> tuple[Any, ...]:
 def _info_row(info: dict[str, Any]) -> list[float]:
     """The values of a single env's info in :data:`INFO_KEYS` order."""
     return [info[key] for key in INFO_KEYS]
-
-
-class SingleMoverVectorEnvV1(SingleMoverVectorEnv):
-    """K copies of ``cv2x/SingleMover-v1`` (see :class:`SingleMoverVectorEnv`)."""
-
-    single_env = SingleMoverEnvV1
-
-
-class SingleMoverVectorEnvV2(SingleMoverVectorEnv):
-    """K copies of ``cv2x/SingleMover-v2`` (see :class:`SingleMoverVectorEnv`)."""
-
-    single_env = SingleMoverEnvV2
-
-
-class SingleMoverVectorEnvV3(SingleMoverVectorEnv):
-    """K copies of ``cv2x/SingleMover-v3`` (see :class:`SingleMoverVectorEnv`): batched, the field, the mover's
-    measurements and its v3 entries in the compiled step (:mod:`cv2x_marl.env.mover_batch_v3`)."""
-
-    single_env = SingleMoverEnvV3

@@ -16,7 +16,8 @@ from pettingzoo.test.seed_test import parallel_seed_test
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import cv2x_marl  # noqa: F401 - registers the ids
-from cv2x_marl.env.registry import ENV_IDS, make_parallel_env
+from cv2x_marl.env import MobilityEnv
+from cv2x_marl.env.registry import ENV_IDS, FACTORIES, SPEC, make_parallel_env
 
 pytestmark = pytest.mark.filterwarnings("ignore")
 
@@ -32,12 +33,26 @@ def test_every_id_is_registered_in_a_framework_and_aec_with_parallel() -> None:
     assert set(GYMNASIUM_IDS) == {i for i in ENV_IDS if "SingleMover" in i or "Traffic" in i}
 
 
-@pytest.mark.parametrize("env_id", PETTINGZOO_IDS)
-def test_make_parallel_env_builds_what_pettingzoo_make_builds(env_id: str) -> None:
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_every_route_builds_the_same_env(env_id: str) -> None:
+    """``make_parallel_env``, ``pettingzoo.make``, the factories and ``gymnasium.make`` of an id build one class with
+    the id's metadata name and options (its row of the spec table)."""
+    name = "cv2x_" + env_id.split("/")[1].lower().replace("-", "_")
     ours = make_parallel_env(env_id, max_cycles=3, **FAST)
-    theirs = pettingzoo.make("parallel", env_id, max_cycles=3, **FAST)
-    assert type(ours) is type(theirs) and ours.metadata["name"] == theirs.metadata["name"]
-    assert ours.metadata["name"] == "cv2x_" + env_id.split("/")[1].lower().replace("-", "_")
+    assert type(ours) is MobilityEnv and ours.metadata["name"] == SPEC[env_id].name == name
+    built = []
+    if env_id in PETTINGZOO_IDS:
+        built.append(pettingzoo.make("parallel", env_id, max_cycles=3, **FAST))
+        built.append(FACTORIES[f"parallel_env{SPEC[env_id].factory}"](max_cycles=3, **FAST))
+    if env_id in GYMNASIUM_IDS:  # vehicle 0's view: the parallel env of the id with movers [0]
+        single = gymnasium.make(env_id, max_cycles=3, **FAST).unwrapped
+        assert single.env_id == env_id and np.flatnonzero(single.par.mover_mask).tolist() == [0]
+        assert single.par.options == make_parallel_env(env_id, max_cycles=3, movers=[0], **FAST).options
+        built.append(single.par)
+    for env in built:
+        assert type(env) is MobilityEnv and env.metadata["name"] == name
+    for env in built[:2] if env_id in PETTINGZOO_IDS else []:
+        assert env.options == ours.options
 
 
 @pytest.mark.parametrize("env_id", PETTINGZOO_IDS)

@@ -4,6 +4,8 @@ independent numpy construction, improvement rewards, the settle phase, the one-m
 
 from __future__ import annotations
 
+import functools
+
 import gymnasium
 import numpy as np
 import pettingzoo
@@ -16,10 +18,12 @@ import cv2x_marl.env as env_module
 from cv2x_marl.env import MobilityEnv
 from cv2x_marl.env.observation import OWN_V1_NAMES
 from cv2x_marl.env.options import V1_DEFAULTS
-from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1
+from cv2x_marl.env.single import SingleMoverEnv
 from cv2x_marl.regression import TwoDistanceModel
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
+#: the single env of the id (one class, the id an argument)
+SingleMoverEnvV1 = functools.partial(SingleMoverEnv, "cv2x/SingleMover-v1")
 
 
 def test_v1_ids_and_checkers() -> None:

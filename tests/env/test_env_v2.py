@@ -146,7 +146,7 @@ def test_plan_residual_zero_action_follows_the_plan_and_corrections_add() -> Non
 
 
 def test_replanning_uses_where_everyone_is_and_keeps_the_fast_path_exact() -> None:
-    from cv2x_marl.env.single import SingleMoverEnvV2
+    from cv2x_marl.env.single import SingleMoverEnv
 
     env = MobilityEnv(max_cycles=12, replan_every=5, **V2_DEFAULTS, **FAST)
     env.reset(seed=6)
@@ -162,7 +162,7 @@ def test_replanning_uses_where_everyone_is_and_keeps_the_fast_path_exact() -> No
             assert reach.radius_m == (12 - t) * env.max_step_m
             np.testing.assert_array_equal(env.plan_m, sensing_plan(env, np.arange(env.n)))
     # one mover: the fast path replans exactly as the full step does
-    fast = SingleMoverEnvV2(max_cycles=12, replan_every=4, **FAST)
+    fast = SingleMoverEnv("cv2x/SingleMover-v2", max_cycles=12, replan_every=4, **FAST)
     full = MobilityEnv(movers=[0], max_cycles=12, replan_every=4, **V2_DEFAULTS, **FAST)
     of, _ = fast.reset(seed=3)
     og, _ = full.reset(seed=3)

@@ -10,6 +10,7 @@ tests (rerun by ``make test-portable``).
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import gymnasium as gym
@@ -21,10 +22,12 @@ from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv
 from cv2x_marl.env.mover_batch import MoverBatch, batch_problem
 from cv2x_marl.env.mover_links import MoverLinksStep
 from cv2x_marl.env.options import V3_DEFAULTS
-from cv2x_marl.env.single import SingleMoverEnvV3
+from cv2x_marl.env.single import SingleMoverEnv
 from cv2x_marl.sim import kernels
 
 FAST = {"overrides": ["sim.warmup_subframes=200"]}
+#: the single env of the id (one class, the id an argument)
+SingleMoverEnvV3 = functools.partial(SingleMoverEnv, "cv2x/SingleMover-v3")
 #: compiled vs numpy received power (dB): a few ulps of log10 on values of about 100 dB are about 1e-13 dB
 RX_ATOL_DB = 1e-9
 

@@ -7,6 +7,7 @@ envs; every comparison is exact (``np.array_equal``, dtypes included).
 
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 from typing import Any
@@ -18,8 +19,12 @@ import pytest
 import cv2x_marl  # noqa: F401 - registers the ids
 from cv2x_marl.env.mobility_env import INFO_KEYS
 from cv2x_marl.env.mover_batch import MoverBatch, batch_problem
-from cv2x_marl.env.single import SingleMoverEnv, SingleMoverEnvV1, SingleMoverEnvV2
-from cv2x_marl.env.vector import SingleMoverVectorEnv, SingleMoverVectorEnvV1, SingleMoverVectorEnvV2
+from cv2x_marl.env.single import SingleMoverEnv
+from cv2x_marl.env.vector import SingleMoverVectorEnv
+
+#: the single envs of the -v1 / -v2 ids (one class, the id an argument)
+SingleMoverEnvV1 = functools.partial(SingleMoverEnv, "cv2x/SingleMover-v1")
+SingleMoverEnvV2 = functools.partial(SingleMoverEnv, "cv2x/SingleMover-v2")
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*is out of date.*")
 
@@ -150,12 +155,11 @@ def test_vector_entry_point_equals_sync_vector_env(mode: str, env_id: str, kw: d
     sync.close()
 
 
-@pytest.mark.parametrize("cls", [SingleMoverVectorEnv, SingleMoverVectorEnvV1, SingleMoverVectorEnvV2])
-def test_make_vec_builds_each_version(cls: type[SingleMoverVectorEnv]) -> None:
-    envs = gym.make_vec(
-        f"cv2x/SingleMover-v{cls.single_env.version}", num_envs=2, vectorization_mode="vector_entry_point"
-    )
-    assert type(envs) is cls and envs.num_envs == 2 and envs.batched
+@pytest.mark.parametrize("env_id", ["cv2x/SingleMover-v0", "cv2x/SingleMover-v1", "cv2x/SingleMover-v2"])
+def test_make_vec_builds_each_version(env_id: str) -> None:
+    envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+    assert type(envs) is SingleMoverVectorEnv and envs.env_id == env_id and envs.num_envs == 2 and envs.batched
+    assert all(e.env_id == env_id for e in envs.envs)
     assert envs.observation_space.shape == (2, *envs.single_observation_space.shape)
 
 
@@ -232,7 +236,7 @@ def test_make_vec_resolves_in_a_fresh_process() -> None:
         "print(type(e).__name__, e.batched, o.shape, o2.shape)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["SingleMoverVectorEnvV2", "True", "(2,", "174)", "(2,", "174)"]
+    assert out.stdout.split() == ["SingleMoverVectorEnv", "True", "(2,", "174)", "(2,", "174)"]
 
 
 def test_batched_copies_refuse_what_would_desynchronise_them() -> None:
