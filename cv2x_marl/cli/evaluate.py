@@ -1,0 +1,111 @@
+"""``cv2x-marl evaluate``: evaluate a mover policy on the env (same episodes for the same seed)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from cv2x_marl.cli.common import (
+    COUNT,
+    ENV_CHOICES,
+    EVALUATE_EPISODES,
+    OVERWRITE_HELP,
+    POSITIVE_FLOAT,
+    PRESET_CHOICES,
+    SEED,
+    print_json,
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--env",
+        default=None,
+        choices=ENV_CHOICES,
+        help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v2",
+    )
+    p.add_argument(
+        "--policy",
+        action="append",
+        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH | baselines/NAME.yaml "
+        "(default gbmu); repeated, or a ppo:PATTERN glob: the training runs of one method, pooled",
+    )
+    p.add_argument(
+        "--seeds",
+        help="episode seeds: integers separated by commas, or heldout | train (the --env task's lists, "
+        "docs/benchmark.md); adds IQM and 95%% bootstrap CIs (default: --episodes from --seed)",
+    )
+    p.add_argument("--env-option", action="append", metavar="KEY=VALUE", help="env argument, YAML value (repeatable)")
+    p.add_argument("--vs-optimum", action="store_true", help="also the optimum on every episode: share_of_optimum")
+    p.add_argument(
+        "--episodes",
+        type=COUNT,
+        default=None,
+        help=f"episodes (default {EVALUATE_EPISODES}); with --seeds, the first N of them; x movers at most "
+        "1,000,000 (rows kept in memory)",
+    )
+    p.add_argument(
+        "--seed", type=SEED, default=None, help="episode k resets with the k-th seed derived from it (default 0)"
+    )
+    p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
+    p.add_argument(
+        "--max-cycles", type=COUNT, default=100, help="steps per episode (the env's max_cycles, at most 10,000)"
+    )
+    p.add_argument(
+        "--max-step",
+        type=POSITIVE_FLOAT,
+        default=5.0,
+        help="offset of a full action (m; the env's max_step_m): at most the scene's diagonal, and -v1/-v2 envs "
+        "refuse a reachable square (2 x max-cycles x max-step wide) whose 20 m plan grid exceeds 4,000,000 points",
+    )
+    p.add_argument(
+        "--replan-every",
+        type=COUNT,
+        default=None,
+        help="-v2 envs: recompute the sensing plan every N steps (default: a ppo:PATH model's setting, else once)",
+    )
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=Path("paper-table2"),
+        help="two-distance model for gbmu/greedy/planner: a fit folder, a model.json, paper-table2 or a shipped "
+        "model (linear-fit, logistic-fit)",
+    )
+    p.add_argument("--delta", type=POSITIVE_FLOAT, default=100.0, help="GBMU/greedy/oracle step size per env step")
+    p.add_argument("--out", type=Path, help="output folder (episodes.csv, summary.json)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from cv2x_marl.experiments import evaluate as ev
+    from cv2x_marl.regression.model import resolve_model
+
+    env_kwargs = {"preset": args.preset, "overrides": args.set or [], "max_cycles": args.max_cycles}
+    env_kwargs["max_step_m"] = args.max_step
+    if args.replan_every is not None:
+        env_kwargs["replan_every"] = args.replan_every
+    env_kwargs.update(ev.parse_env_options(args.env_option or [], ev.EVALUATE_FLAGS))
+    policies = ev.expand_policies(args.policy or ["gbmu"])
+    seeds = ev.cli_seeds(args.seeds, args.episodes, args.seed, args.env, policies)
+    summary = ev.evaluate(
+        args.env,
+        policies if len(policies) > 1 else policies[0],
+        EVALUATE_EPISODES if args.episodes is None else args.episodes,
+        0 if args.seed is None else args.seed,
+        args.out,
+        env_kwargs,
+        model_path=resolve_model(str(args.model)),
+        delta=args.delta,
+        progress=not args.quiet,
+        vs_optimum=args.vs_optimum,
+        overwrite=args.overwrite,
+        seeds=seeds,
+    )
+    if args.json:
+        print_json(summary)
+    else:
+        print(ev.format_summary(summary, ", ".join(args.policy or ["gbmu"])))
+    return 0
