@@ -1,6 +1,7 @@
-"""PettingZoo environment for controlled mobility (``cv2x/Mobility-v0``) and its factories.
+"""The environments of every env id (one :class:`MobilityEnv` per id's options) and their factories.
 
-    parallel_env(**kw)  the ParallelEnv (:class:`MobilityEnv`)
+    make_parallel_env(env_id, **kw) / make_aec_env(env_id, **kw)   any registered id
+    parallel_env(**kw)  the ParallelEnv of ``cv2x/Mobility-v0`` (:class:`MobilityEnv`)
     raw_env(**kw)       its AEC version (``parallel_to_aec_wrapper``), unwrapped
     env(**kw)           the AEC version with PettingZoo's standard wrapper (order enforcing)
 
