@@ -159,7 +159,7 @@ def _mover_steps(
             dist2_m2[k], period_m, p_min, normalise, improvement, version >= 1, info_out[k],
         )  # fmt: skip
         done_out[k] = t[k] >= max_cycles
-        # observation (MobilityEnv._build for the mover, then its own v1 entries)
+        # observation (MobilityEnv.build for the mover, then its own v1 entries)
         for j in range(n):
             drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
             drift[j, 1] = pos[j, 1] - start_m[k, j, 1]
@@ -253,7 +253,7 @@ class MoverBatch:
         env = self.envs[k]
         i = env.fast_mover
         assert i is not None
-        if env.t != 0 or env._mover_row is not None:
+        if env.t != 0 or env.mover_links is not None:
             raise RuntimeError(f"env copy {k} must be loaded right after its reset")
         if self._const is None:
             self._const = self._constants(env)
@@ -261,10 +261,10 @@ class MoverBatch:
         self.t[k] = env.t
         self.positions_m[k] = env.positions_m
         self.start_m[k] = env.start_m
-        assert env._geometry is not None and env._co_table is not None
-        self.disp_m[k] = env._geometry.disp_m
-        self.dist2_m2[k] = env._geometry.dist2_m2
-        table = env._co_table
+        assert env.geometry is not None and env.co_table is not None
+        self.disp_m[k] = env.geometry.disp_m
+        self.dist2_m2[k] = env.geometry.dist2_m2
+        table = env.co_table
         _widened(self, "co_table", table.shape[1], -1)
         self.co_table[k] = -1
         self.co_table[k, :, : table.shape[1]] = table
@@ -277,11 +277,12 @@ class MoverBatch:
         self.level_db[k] = kernels.levels_db(args[7], args[8])
         s = self.scalars[k]
         s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.utility[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
-        s[BASE_PREV] = env._base_prev[i]
-        if env.layout.version >= 1:
-            s[U_NOW], s[U_PREV], s[U_START], s[U_BEST] = env._u_now[i], env._u_prev[i], env._u_start[i], env._u_best[i]
+        s[BASE_PREV] = env.rewarder.previous[i]
+        own = env.own
+        if own is not None:
+            s[U_NOW], s[U_PREV], s[U_START], s[U_BEST] = own.u_now[i], own.u_prev[i], own.u_start[i], own.u_best[i]
             self.plan_m[k] = env.plan_m[i]
-            self.best_m[k] = env._best_m[i]
+            self.best_m[k] = own.best_m[i]
         if self.v3 is not None:
             self.v3.load(k, env, i)
         self.loaded[k] = True
@@ -372,18 +373,18 @@ class MoverBatch:
         env.positions_m = self.positions_m[k].copy()
         env.t = int(self.t[k])
         env.link_p = self.p[k].copy()
-        env._geometry = type(env._geometry)(self.disp_m[k].copy(), self.dist2_m2[k].copy())  # type: ignore[misc]
+        env.geometry = type(env.geometry)(self.disp_m[k].copy(), self.dist2_m2[k].copy())  # type: ignore[misc]
         s = self.scalars[k]
         env.utility[i], env.prr[i], env.jain[i] = s[U], s[PRR], s[JAIN]
-        env._base_prev[i] = s[BASE_PREV]
-        if env.layout.version >= 1:
-            env._u_now[i], env._u_prev[i], env._u_best[i] = s[U_NOW], s[U_PREV], s[U_BEST]
-            env._best_m[i] = self.best_m[k]
+        env.rewarder.previous[i] = s[BASE_PREV]
+        own = env.own
+        if own is not None:
+            own.u_now[i], own.u_prev[i], own.u_best[i] = s[U_NOW], s[U_PREV], s[U_BEST]
+            own.best_m[i] = self.best_m[k]
         if self.v3 is not None:
             self.v3.sync(k, env)
         if env.t >= env.max_cycles:
-            env.agents = []
-            env._live = set()
+            env.finish()
 
 
 #: env methods that change a copy's episode: through a batch they would leave its stacks stale

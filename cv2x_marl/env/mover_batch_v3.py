@@ -107,7 +107,7 @@ class V3Stacks:
         self.rsrp_dbm[k] = m.rsrp_dbm
         self.age[k] = m.age
         self.rng_state[k] = state_of(m.rng)
-        self.rx_dbm[k] = env._rx_dbm
+        self.rx_dbm[k] = env.rx_dbm
         links = env.links
         args = links._kernel_args
         self.eirp_dbm = float(links.eirp_dbm)
@@ -162,7 +162,7 @@ class V3Stacks:
         m.rsrp_dbm = self.rsrp_dbm[k].copy()
         m.age = self.age[k].copy()
         set_state(m.rng, self.rng_state[k])
-        env._rx_dbm = self.rx_dbm[k].copy()
+        env.rx_dbm = self.rx_dbm[k].copy()
 
 
 @njit(cache=True)

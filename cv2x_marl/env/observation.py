@@ -116,6 +116,12 @@ FEATURES_V4 = len(FEATURES_V4_NAMES)
 #: the own entries of observation version 4, in order (the driving entries follow)
 OWN_V4_NAMES = ("slot", "subchannel", "counter", "release", "utility", "utility_change_x10")
 OWN_V4 = len(OWN_V4_NAMES)
+#: the blocks each observation version adds after the v0 block: version -> (values per neighbour, own entries);
+#: :func:`cv2x_marl.env.observation_models.register_observation` adds a version's row (``privileged`` adds
+#: one value per neighbour to versions 1 and 2)
+VERSION_BLOCKS: dict[int, tuple[int, int]] = {0: (0, 0), 1: (1, OWN_V1), 2: (1, OWN_V1), 3: (FEATURES_V3, OWN_V3),
+                                              4: (FEATURES_V4, OWN_V4)}  # fmt: skip
+#: the built-in observation versions (:data:`VERSION_BLOCKS` holds every registered one)
 VERSIONS = (0, 1, 2, 3, 4)
 #: the driving entries closing the observation with ``drive`` (module docstring)
 OWN_DRIVE_NAMES = ("speed", "heading_x", "heading_y", "lane", "lane_left", "lane_right", "time_left")
@@ -139,11 +145,7 @@ class ObservationLayout:
     def per_neighbour_extra(self) -> int:
         """Values per neighbour after the v0 block: model P (v1), true P (v1, privileged); the
         :data:`FEATURES_V3` measured values (v3)."""
-        if self.version == 3:
-            return FEATURES_V3
-        if self.version == 4:
-            return FEATURES_V4
-        return 0 if self.version == 0 else 1 + int(self.privileged)
+        return VERSION_BLOCKS[self.version][0] + int(self.privileged and self.version in (1, 2))
 
     @property
     def model_extra(self) -> int:
@@ -161,8 +163,7 @@ class ObservationLayout:
 
     @property
     def size(self) -> int:
-        own = {0: 0, 3: OWN_V3, 4: OWN_V4}.get(self.version, OWN_V1)
-        return self.own_v1_offset + own + (OWN_DRIVE if self.drive else 0)
+        return self.own_v1_offset + VERSION_BLOCKS[self.version][1] + (OWN_DRIVE if self.drive else 0)
 
     @property
     def drive_offset(self) -> int:

@@ -537,6 +537,11 @@ class EnvOptions:
                 )
 
 
+def option_names() -> tuple[str, ...]:
+    """Every option's name, in the schema's order (the keyword arguments of every env id)."""
+    return tuple(f.name for f in dataclasses.fields(EnvOptions))
+
+
 def options_markdown() -> str:
     """The table of :class:`EnvOptions` (the ``Arguments`` table of ``docs/env.md``)."""
     hints = typing.get_type_hints(EnvOptions)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numba import njit
@@ -68,8 +68,9 @@ class TrafficEnvState(Protocol):
         link_p: [N(tx), N(rx)] the period's success probabilities.
         resource: [N] every vehicle's next resource.
         traffic_measure: the measurements (:class:`TrafficMeasurements`).
-        _geometry: the pair geometry of the positions now (the v0 block's).
-        _u_now, _u_prev: [N] utility per target receiver now and the step before.
+        geometry: the pair geometry of the positions now (the v0 block's).
+        own: the own state (:class:`~cv2x_marl.env.observation_models.OwnState`: ``u_now``, ``u_prev``, [N]
+            utility per target receiver now and the step before).
     """
 
     layout: ObservationLayout
@@ -80,9 +81,8 @@ class TrafficEnvState(Protocol):
     link_p: FloatArray
     resource: IntArray
     traffic_measure: TrafficMeasurements
-    _geometry: PairGeometry | None
-    _u_now: FloatArray
-    _u_prev: FloatArray
+    geometry: PairGeometry | None
+    own: Any
 
 
 def period_rx_dbm(geometry: Geometry, n: int) -> FloatArray:
@@ -264,15 +264,15 @@ def fill_observations(env: TrafficEnvState, obs: NDArray[np.float32], rows: IntA
     layout: ObservationLayout = env.layout
     if layout.version != 4:
         raise ValueError("fill_observations writes observation version 4")
-    assert env._geometry is not None
+    assert env.geometry is not None and env.own is not None
     rows = np.arange(env.n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
     cfg, m, sci = env.config, env.traffic_measure.rsrp, env.traffic_measure.sci
     sched = env.sim.scheduler
     _fill_kernel(
-        obs, env._geometry.dist2_m2, scaled_rsrp(m.rsrp_dbm), m.age, np.isfinite(m.rsrp_dbm), sci.resource,
+        obs, env.geometry.dist2_m2, scaled_rsrp(m.rsrp_dbm), m.age, np.isfinite(m.rsrp_dbm), sci.resource,
         sci.release, np.ascontiguousarray(env.resource, dtype=np.int64),
         sched.counter / counter_range(cfg.sps, cfg.traffic.rri_ms)[1], np.ascontiguousarray(sched.releasing),
-        np.ascontiguousarray(env._u_now, dtype=np.float64), np.ascontiguousarray(env._u_prev, dtype=np.float64),
+        np.ascontiguousarray(env.own.u_now, dtype=np.float64), np.ascontiguousarray(env.own.u_prev, dtype=np.float64),
         rows, layout.n_neighbours, layout.v0_size, layout.own_v1_offset, m.window, cfg.sps.n_subchannels,
         cfg.traffic.rri_ms, layout.obs_clip,
     )  # fmt: skip

@@ -231,7 +231,7 @@ def optimum_utilities(env: MobilityEnv, ref: Any = None) -> np.ndarray:
         return np.asarray(ref.ceiling_utilities())
     ref.reset()
     ref.act({})  # computes the episode's targets (the env at its reset)
-    return env._utilities(env.links.success(ref.targets_m), env.target)
+    return env.utilities(env.links.success(ref.targets_m), env.target)
 
 
 def ceiling_env(env_id: str, env_kwargs: dict[str, Any], env: MobilityEnv) -> MobilityEnv:

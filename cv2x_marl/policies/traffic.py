@@ -178,7 +178,7 @@ def rollout(
     i = _mover(env)
     name = env.possible_agents[i]
     zero = np.zeros(2, dtype=np.float32)
-    obs: dict[str, Any] = env._observations()
+    obs: dict[str, Any] = env.observations()
     if policy is not None:
         policy.reset(env.seed_used)
     taken = []
@@ -193,7 +193,7 @@ def rollout(
         full[name] = act
         obs, *_ = env.step(full)
     t = max(env.t, 1)
-    out = Rollout(np.array(taken, dtype=np.float32), float(env._u_sum[i] / t), float(env._prr_sum[i] / t))
+    out = Rollout(np.array(taken, dtype=np.float32), float(env.u_sum[i] / t), float(env.prr_sum[i] / t))
     if replay:  # the start again: the same seed gives the same episode (SUMO's run included)
         start.reset(seed=start.seed_used)
     return out

@@ -181,12 +181,10 @@ def env_arguments(env_id: str) -> tuple[str, ...]:
     """The keyword arguments of :class:`~cv2x_marl.env.mobility_env.MobilityEnv` a training
     config's ``env`` may set: all but ``config`` (a Python object; use ``preset`` and
     ``overrides``) and, for the ``SingleMover`` ids, ``movers`` (fixed to vehicle 0)."""
-    import inspect
+    from cv2x_marl.env.options import option_names
 
-    from cv2x_marl.env.mobility_env import MobilityEnv
-
-    skip = {"self", "config"} | ({"movers"} if env_id.startswith("cv2x/SingleMover") else set())
-    return tuple(n for n in inspect.signature(MobilityEnv.__init__).parameters if n not in skip)
+    skip = {"config"} | ({"movers"} if env_id.startswith("cv2x/SingleMover") else set())
+    return tuple(n for n in option_names() if n not in skip)
 
 
 #: what a run folder's ``train_config.json`` holds besides the configuration (and ``algo``, read by the CLI)

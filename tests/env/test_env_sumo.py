@@ -173,7 +173,7 @@ def test_traffic_v0_sumo_option_policies_and_the_ceiling_replayed_from_the_seed(
     assert all(res.best.utility_mean >= u for u in res.scripted.values())
     assert traffic.rollout(env, actions=res.best.actions).utility_mean == res.best.utility_mean
     assert env.t == 0
-    obs = env._observations()
+    obs = env.observations()
     assert all(np.array_equal(obs[a], obs0[a]) for a in env.agents)  # the start again, from the seed
     env.close()
     for name, value in (("accel_mps2", 3.0), ("decel_mps2", 5.0)):

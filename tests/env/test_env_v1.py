@@ -63,7 +63,7 @@ def _reference_v1(env: MobilityEnv, model: TwoDistanceModel, obs: dict) -> None:
         np.testing.assert_allclose(lay.true_success(o), env.link_p[i, order], rtol=2e-6, atol=1e-7)
         own = lay.own_v1(o)
         assert own[0] == pytest.approx(u_per_rx[i], rel=1e-5)
-        assert own[2] == pytest.approx(u_per_rx[i] - env._u_start[i], abs=1e-5)
+        assert own[2] == pytest.approx(u_per_rx[i] - env.own.u_start[i], abs=1e-5)
         np.testing.assert_allclose(own[6:8], (env.plan_m[i] - pos[i]) / lay.scale_m, atol=1e-5)
         left = env.max_cycles - env.settle_steps - env.t
         assert own[8] == pytest.approx(left * env.max_step_m / lay.scale_m)
@@ -98,7 +98,7 @@ def test_improvement_rewards_sum_to_final_minus_start(reward: str) -> None:
     ref.reset(seed=2)
     rng = np.random.default_rng(0)
     total = np.zeros(env.n)
-    start = ref._rewards(ref.utility).copy()
+    start = ref.rewarder.base(ref, ref.utility).copy()
     while env.agents:
         act = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
         r, r_ref = env.step(act)[1], ref.step(act)[1]

@@ -89,8 +89,8 @@ def test_layout_plan_free_and_entries_against_numpy() -> None:
                 want[3 * s : 3 * s + 3] = [*np.clip((pos[c] - pos[i]) / lay.scale_m, -10, 10), 1.0]
             np.testing.assert_allclose(meas[k, 4:], want, atol=1e-5)
         own = lay.own_v3(o)
-        assert own[0] == pytest.approx(par._u_now[i], rel=1e-6)
-        assert own[1] == pytest.approx(10 * (par._u_now[i] - par._u_prev[i]), rel=1e-5, abs=1e-6)
+        assert own[0] == pytest.approx(par.own.u_now[i], rel=1e-6)
+        assert own[1] == pytest.approx(10 * (par.own.u_now[i] - par.own.u_prev[i]), rel=1e-5, abs=1e-6)
         np.testing.assert_allclose(own[2:4], (pos[i] - par.start_m[i]) / lay.scale_m, rtol=1e-5, atol=1e-7)
         assert own[4] == pytest.approx(26 / 30) and own[5] == pytest.approx(26 * 5.0 / 100.0)
 

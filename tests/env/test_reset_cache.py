@@ -159,7 +159,7 @@ def test_start_pool_draws_training_seeds_and_keeps_their_starts() -> None:
     # a pooled start equals the same seed computed afresh, observation and rewards included
     fresh = make_parallel_env("cv2x/SingleMover-v3", max_cycles=5)
     o1, _ = fresh.reset(seed=used[-1])
-    o2 = env._observations()
+    o2 = env.observations()
     np.testing.assert_array_equal(o1["vehicle_0"], o2["vehicle_0"])
     act = {a: np.array([0.3, -0.2], dtype=np.float32) for a in env.agents}
     r1 = fresh.step(act)[1]

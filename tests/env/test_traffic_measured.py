@@ -86,7 +86,7 @@ def _expected(env: Any, rep: Replay) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """[N, K, F4] measured entries, [N, OWN_V4] own entries (before clipping and float32) and the neighbour
     order [N, K] (nearest first, ties by index: np.lexsort, not the env's sort)."""
     k = N - 1
-    dist = np.sqrt(env._geometry.dist2_m2)
+    dist = np.sqrt(env.geometry.dist2_m2)
     order = np.array([[j for j in np.lexsort((np.arange(N), dist[i])) if j != i][:k] for i in range(N)])
     n_sub, rri = env.config.sps.n_subchannels, env.config.traffic.rri_ms
     own_res = env.sim.resource
@@ -107,10 +107,10 @@ def _expected(env: Any, rep: Replay) -> tuple[np.ndarray, np.ndarray, np.ndarray
             ]
     sched = env.sim.scheduler
     counter_max = env.config.sps.counter_max  # with RRI 100 ms (TS 36.321 5.14.1.1)
-    u = env._u_now
+    u = env.own.u_now
     own = np.stack(
         [(own_res // n_sub) / rri, (own_res % n_sub) / n_sub, sched.counter / counter_max, sched.releasing, u,
-         10.0 * (u - env._u_prev)],
+         10.0 * (u - env.own.u_prev)],
         axis=1,
     )  # fmt: skip
     return meas, own, order
@@ -132,7 +132,7 @@ def trajectory() -> list[dict[str, Any]]:
     for t in range(STEPS + 1):
         meas, own, order = _expected(env, rep)
         stacked = np.stack([obs[a] for a in env.possible_agents])
-        disp = env._geometry.disp_m.copy()
+        disp = env.geometry.disp_m.copy()
         out.append({"obs": stacked, "meas": meas, "own": own, "order": order, "disp": disp, "sent": rep.sent[0].copy()})
         if t == STEPS:
             break

@@ -51,9 +51,9 @@ def _batch_vs_step_mover(cls: type[SingleMoverEnv], copies: int = 3, steps: int 
             assert np.array_equal([inf[key] for key in INFO_KEYS], info[k])
             par = ref[k].par
             assert np.array_equal(par.positions_m, batch.positions_m[k])
-            assert par._geometry is not None
-            assert np.array_equal(par._geometry.disp_m, batch.disp_m[k])  # -0.0 on the diagonal included
-            assert np.array_equal(np.signbit(par._geometry.disp_m), np.signbit(batch.disp_m[k]))
+            assert par.geometry is not None
+            assert np.array_equal(par.geometry.disp_m, batch.disp_m[k])  # -0.0 on the diagonal included
+            assert np.array_equal(np.signbit(par.geometry.disp_m), np.signbit(batch.disp_m[k]))
             compared += 1
             if trunc:
                 ref[k].reset()

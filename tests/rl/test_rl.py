@@ -54,8 +54,8 @@ def test_adapter_copies_get_distinct_seeds_and_layout() -> None:
     v.seed(10)
     obs = v.reset()
     assert [e.seed_used for e in v.envs] != [v.envs[0].seed_used] * 3
-    np.testing.assert_array_equal(obs[2], v.envs[1]._observations()["vehicle_0"])
-    np.testing.assert_array_equal(obs[3], v.envs[1]._observations()["vehicle_5"])
+    np.testing.assert_array_equal(obs[2], v.envs[1].observations()["vehicle_0"])
+    np.testing.assert_array_equal(obs[3], v.envs[1].observations()["vehicle_5"])
 
 
 def test_adapter_truncation_and_terminal_observation() -> None:

@@ -1,0 +1,68 @@
+"""The reward model: each agent's reward from the eq. 12 utilities of a step.
+
+Five options say it, read here only: ``reward`` (``individual``: the own utility; ``team``: the mean over the
+vehicles of ``team_objective``, their utility or their PRR; ``mixed``: ``local_ratio`` own plus
+``1 - local_ratio`` team; ``difference``: the team objective minus its value with the agent back at its start),
+``normalise_reward`` (utilities per target receiver, applied where they are computed), ``reward_form``
+(``utility``: the reward is the value after the step; ``improvement``: its change over the step, a potential-based
+shaping whose episode sum is final minus start) and ``p_min`` (the clip inside eq. 12's log).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cv2x_marl.env import step as step_core
+from cv2x_marl.env.team_search import difference_rewards
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.options import EnvOptions
+
+FloatArray = NDArray[np.float64]
+
+
+class RewardModel:
+    """The rewards of one env (built once from its options).
+
+    Attributes:
+        kind: the ``reward`` option.
+        improvement: ``reward_form="improvement"``.
+        previous: [N] each agent's reward base after the last step (the improvement form's reference).
+    """
+
+    def __init__(self, options: EnvOptions) -> None:
+        self.kind = options.reward
+        self.local_ratio = options.local_ratio
+        self.team_objective = options.team_objective
+        self.improvement = options.reward_form == "improvement"
+        self.previous: FloatArray = np.zeros(0)
+
+    def base(self, env: MobilityEnv, u: FloatArray) -> FloatArray:
+        """[N] the reward's base of utilities ``u`` [N] (what the ``utility`` form returns)."""
+        if self.kind == "individual":
+            return u
+        if self.kind == "difference":
+            return difference_rewards(
+                env.links, env.positions_m, env.start_m, env.mover_mask, env.p_min, env.normalise_reward
+            )
+        team = np.full_like(u, (u if self.team_objective == "utility" else env.prr).mean())
+        if self.kind == "team":
+            return team
+        return self.local_ratio * u + (1.0 - self.local_ratio) * team
+
+    def reset(self, env: MobilityEnv) -> None:
+        """At the episode's start: the reference of the first step's improvement."""
+        self.previous = self.base(env, env.utility).copy()
+
+    def step(self, env: MobilityEnv) -> FloatArray:
+        """[N] the rewards of the step just taken (:func:`~cv2x_marl.env.step.step_rewards`)."""
+        return step_core.step_rewards(self.base(env, env.utility), self.previous, self.improvement)
+
+    def step_mover(self, i: int, u: float) -> float:
+        """The reward of agent ``i`` (individual reward) after a step of it alone with utility ``u``."""
+        reward, self.previous[i] = step_core.step_reward(u, self.previous[i], self.improvement)
+        return float(reward)
