@@ -15,6 +15,7 @@ from cv2x_marl.cli.common import (
     SEED,
     print_json,
 )
+from cv2x_marl.cli.env_flags import add_option_flag
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,22 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
-    p.add_argument(
-        "--max-cycles", type=COUNT, default=100, help="steps per episode (the env's max_cycles, at most 10,000)"
-    )
-    p.add_argument(
-        "--max-step",
-        type=POSITIVE_FLOAT,
-        default=5.0,
-        help="offset of a full action (m; the env's max_step_m): at most the scene's diagonal, and -v1/-v2 envs "
-        "refuse a reachable square (2 x max-cycles x max-step wide) whose 20 m plan grid exceeds 4,000,000 points",
-    )
-    p.add_argument(
-        "--replan-every",
-        type=COUNT,
-        default=None,
-        help="-v2 envs: recompute the sensing plan every N steps (default: a ppo:PATH model's setting, else once)",
-    )
+    add_option_flag(p, "max_cycles")
+    add_option_flag(p, "max_step_m", "--max-step")
+    add_option_flag(p, "replan_every", note="default: a ppo:PATH model's setting, else once")
     p.add_argument(
         "--model",
         type=Path,

@@ -25,10 +25,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step as step_core
+from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import mobility
+from cv2x_marl.sim.ground_truth import SnapshotLinks, pair_geometry
+from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.shadow_field import ShadowField
 
 if TYPE_CHECKING:
-    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.episode import EpisodeEnv
     from cv2x_marl.env.options import EnvOptions
 
 FloatArray = NDArray[np.float64]
@@ -55,11 +59,19 @@ class Dynamics:
     kind: ClassVar[str] = ""
     residual: ClassVar[bool] = False
 
-    def __init__(self, env: MobilityEnv) -> None:
+    def __init__(self, env: EpisodeEnv) -> None:
         self.env = env
+
+    def start(self, episode_seed: int) -> None:
+        """A fresh start (after the simulator's stage-1 run, ``env.snapshot``): what the links need."""
 
     def move(self, act: FloatArray, settle: bool) -> Moved:
         """Apply actions ``act`` [N, 2] (``settle``: the settle phase, where vehicles stay put)."""
+        raise NotImplementedError
+
+    def links(self) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """The links where the vehicles are now: success probabilities and target receivers [N(tx), N(rx)]; sets
+        ``env.geometry`` (and ``env.rx_dbm`` when the observation model needs the received powers)."""
         raise NotImplementedError
 
 
@@ -75,13 +87,34 @@ def register_dynamics(model: type[Dynamics]) -> type[Dynamics]:
     return model
 
 
-def dynamics_model(env: MobilityEnv) -> Dynamics:
+def dynamics_model(env: EpisodeEnv) -> Dynamics:
     """The dynamics of the env's action kind (:data:`DYNAMICS`)."""
     return DYNAMICS[action_kind(env.options)](env)
 
 
+class Snapshot(Dynamics):
+    """Snapshot mode: the stage-1 snapshot's links (:class:`~cv2x_marl.sim.ground_truth.SnapshotLinks`), evaluated
+    where the actions moved the vehicles."""
+
+    def start(self, episode_seed: int) -> None:
+        env = self.env
+        snap, field = env.snapshot, None
+        if env.options.shadow_field:
+            rng = env_stream(episode_seed, "shadow_field")
+            field = ShadowField.draw(env.config, snap.positions_m, snap.shadowing_db, snap.los, rng)
+        env.links = SnapshotLinks(env.config, snap, env.truth_los, field=field)
+
+    def links(self) -> tuple[FloatArray, NDArray[np.bool_]]:
+        env = self.env
+        if env.observer.needs_rx:  # the field read once for P and the powers
+            p, env.geometry, env.rx_dbm = env.links.evaluate_rx(env.positions_m)
+        else:
+            p, env.geometry = env.links.evaluate(env.positions_m)  # geometry shared with the observations
+        return p, env.links.target
+
+
 @register_dynamics
-class Offset(Dynamics):
+class Offset(Snapshot):
     """Snapshot mode: the step is the action times ``max_step_m`` (:func:`~cv2x_marl.env.step.move_vehicles`:
     clip, settle phase, ``max_drift_m`` and region bounds)."""
 
@@ -107,6 +140,19 @@ class PlanResidual(Offset):
 
 class Traffic(Dynamics):
     """Traffic mode: the simulator runs one SPS period per step; positions are the road's (plus offsets)."""
+
+    def links(self) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """The period's own link outcomes (half-duplex pairs are not targets)."""
+        env = self.env
+        env.geometry = pair_geometry(env.positions_m, env.wrap_road)
+        assert env.sim.last_links is not None
+        tx, rx, p, cause = env.sim.last_links
+        dense = np.zeros((env.n, env.n))
+        target = np.zeros((env.n, env.n), dtype=bool)
+        ok = cause != CAUSE_CODE["half_duplex"]
+        dense[tx, rx] = p
+        target[tx[ok], rx[ok]] = True
+        return dense, target
 
     def run_period(self) -> None:
         env = self.env

@@ -26,22 +26,15 @@ from cv2x_marl.config import ConfigError
 from cv2x_marl.env import mover_step, starts
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env.dynamics import TargetSpeed, dynamics_model
+from cv2x_marl.env.infos import DRIVE_INFO_KEYS, EPISODE_INFO_KEYS, INFO_KEYS, global_state, infos_of
 from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table, fill_drive
 from cv2x_marl.env.observation_models import OwnState, observation_model
 from cv2x_marl.env.options import EnvOptions
 from cv2x_marl.env.rewards import RewardModel
-from cv2x_marl.rng import env_stream
 from cv2x_marl.sim import Simulator
-from cv2x_marl.sim.ground_truth import PairGeometry, SnapshotLinks, pair_geometry
-from cv2x_marl.sim.metrics import CAUSE_CODE
+from cv2x_marl.sim.ground_truth import PairGeometry
 from cv2x_marl.sim.road import Road
-from cv2x_marl.sim.shadow_field import ShadowField
 
-#: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
-INFO_KEYS = mover_step.INFO_KEYS
-#: the infos' keys added by ``episode_metrics`` (the means over the episode's steps so far), and with
-#: ``drive_observation`` (the vehicle's speed and lane now)
-EPISODE_INFO_KEYS, DRIVE_INFO_KEYS = ("utility_mean", "prr_mean", "jain_mean"), ("speed_mps", "lane")
 FloatArray = NDArray[np.float64]
 
 
@@ -120,7 +113,8 @@ class MobilityEnv(ParallelEnv):
             self.mover_mask[list(opts.movers)] = True
         #: [N] the step of a full action (m): ``max_step_m`` for the movers, 0 for who stays put
         self.step_scale_m = float(opts.max_step_m) * self.mover_mask.astype(np.float64)
-        self._wrap_road = road if cfg.road.wrap_distances else None
+        #: the road whose distances wrap (None: they do not)
+        self.wrap_road = road if cfg.road.wrap_distances else None
         #: [2] the torus of the pair geometry (inf where distances do not wrap)
         self.period_m = np.asarray(road.periodic_box_m if cfg.road.wrap_distances else np.full(2, np.inf), dtype=float)
         self.geometry: PairGeometry | None = None
@@ -203,7 +197,10 @@ class MobilityEnv(ParallelEnv):
         keep = starts.cache_size(self) > 0
         cached = starts.cached_start(self, episode_seed) if keep else None
         if cached is None:
-            self._start_links(episode_seed)
+            self.sim = Simulator(self.config)
+            self.sim.keep_period_geometry = self.observer.keep_period_geometry
+            self.snapshot = self.sim.reset(episode_seed)
+            self.dynamics.start(episode_seed)
         else:  # traffic mode: a copy of the kept simulator (the episode runs it on); links are snapshot mode's
             self.sim, self.snapshot, links = cached.open()
             if links is not None:
@@ -220,7 +217,7 @@ class MobilityEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         self._live = set(self.agents)
         self.tracks = [self.positions_m.copy()]
-        self.link_p, self.target = self._link_success()
+        self.link_p, self.target = self.dynamics.links()
         self._summarise()
         self.u0 = self.utility.copy()
         self.prr0 = self.prr.copy()
@@ -230,20 +227,8 @@ class MobilityEnv(ParallelEnv):
         if keep and cached is None:
             starts.store_start(self, episode_seed)
         obs = self.observations()
-        infos = self._infos(np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
+        infos = infos_of(self, np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
         return obs, infos
-
-    def _start_links(self, episode_seed: int) -> None:
-        """A fresh start: the simulator's stage-1 run and, in snapshot mode, the snapshot's links."""
-        self.sim = Simulator(self.config)
-        self.sim.keep_period_geometry = self.observer.keep_period_geometry
-        self.snapshot = snap = self.sim.reset(episode_seed)
-        if self.mode == "snapshot":
-            field = None
-            if self.options.shadow_field:
-                rng = env_stream(episode_seed, "shadow_field")
-                field = ShadowField.draw(self.config, snap.positions_m, snap.shadowing_db, snap.los, rng)
-            self.links = SnapshotLinks(self.config, snap, self.truth_los, field=field)
 
     # -------------------------------------------------------------------- step
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
@@ -253,7 +238,7 @@ class MobilityEnv(ParallelEnv):
         applied, clipped = self.dynamics.move(act, self.t >= self.max_cycles - self.settle_steps)
         self.t += 1
         self.tracks.append(self.positions_m.copy())
-        self.link_p, self.target = self._link_success()
+        self.link_p, self.target = self.dynamics.links()
         self._summarise()
         self.u_sum += self.utility
         self.prr_sum += self.prr
@@ -267,7 +252,7 @@ class MobilityEnv(ParallelEnv):
         rewards = dict(zip(agents, rewards_arr.tolist(), strict=True))
         terms = dict.fromkeys(agents, False)
         truncs = dict.fromkeys(agents, done)
-        infos = self._infos(applied, clipped)
+        infos = infos_of(self, applied, clipped)
         if done:
             self.finish()
         if self.render_mode == "human":
@@ -298,23 +283,6 @@ class MobilityEnv(ParallelEnv):
         return self.dynamics.targets(act)
 
     # ------------------------------------------------------------------ pieces
-    def _link_success(self) -> tuple[FloatArray, NDArray[np.bool_]]:
-        if self.mode == "snapshot" and self.observer.needs_rx:  # the field read once for P and the powers
-            p, self.geometry, self.rx_dbm = self.links.evaluate_rx(self.positions_m)
-            return p, self.links.target
-        if self.mode == "snapshot":
-            p, self.geometry = self.links.evaluate(self.positions_m)  # geometry shared with the observations
-            return p, self.links.target
-        self.geometry = pair_geometry(self.positions_m, self._wrap_road)
-        assert self.sim.last_links is not None
-        tx, rx, p, cause = self.sim.last_links
-        dense = np.zeros((self.n, self.n))
-        target = np.zeros((self.n, self.n), dtype=bool)
-        ok = cause != CAUSE_CODE["half_duplex"]
-        dense[tx, rx] = p
-        target[tx[ok], rx[ok]] = True
-        return dense, target
-
     def utilities(self, p: FloatArray, target: NDArray[np.bool_]) -> FloatArray:
         """[N] eq. 12 utility of each agent's broadcast over links ``p``, ``target`` [N, N] (per receiver with
         ``normalise_reward``)."""
@@ -354,36 +322,10 @@ class MobilityEnv(ParallelEnv):
         self.observer.fill(self, obs, np.arange(self.n, dtype=np.int64))
         return dict(zip(self.agents, obs, strict=True))
 
-    def _infos(self, applied: FloatArray, clipped: NDArray[np.bool_]) -> dict[str, dict[str, float]]:
-        """Numeric infos of every agent (all agents are live whenever infos are built)."""
-        cols = [self.utility, self.u0, self.prr, self.prr0, self.jain, applied[:, 0], applied[:, 1], clipped]
-        if self.options.episode_metrics:  # the means over the steps so far (at reset: the start's)
-            steps = max(self.t, 1)
-            sums = (self.u_sum, self.prr_sum, self.jain_sum)
-            cols += [x / steps for x in sums] if self.t else [self.utility, self.prr, self.jain]
-            if self.layout.drive:
-                speed, _, lane = step_core.drive_state(self.sim, self.config.road.lanes_per_direction)
-                cols += [speed, lane]
-        table = np.stack(cols, axis=1).tolist()
-        keys = self.info_keys
-        return {a: dict(zip(keys, row, strict=True)) for a, row in zip(self.possible_agents, table, strict=True)}
-
     # ----------------------------------------------------------- state / draw
     def state(self) -> NDArray[np.float32]:
-        """Global state for centralised critics: positions / region, drifts / scale, slot / RRI and subchannel /
-        n_subchannels of every vehicle [6N], then the observation model's pair entries (version 3: every
-        vehicle's RSRP reports, scaled as in the observation, and their ages / window, [N(tx) x N(rx)] each)."""
-        if not hasattr(self, "positions_m"):
-            raise RuntimeError("state() called before reset(): call reset() first")
-        slot, sub = np.divmod(self.resource, self.config.sps.n_subchannels)
-        parts = [
-            (self.positions_m / self.layout.region_m).ravel(),
-            ((self.positions_m - self.start_m) / self.layout.scale_m).ravel(),
-            slot / self.config.traffic.rri_ms,
-            sub / self.config.sps.n_subchannels,
-            *self.observer.state_parts(self),
-        ]
-        return np.clip(np.concatenate(parts), -self.layout.obs_clip, self.layout.obs_clip).astype(np.float32)
+        """Global state for centralised critics (:func:`~cv2x_marl.env.infos.global_state`)."""
+        return global_state(self)
 
     def render(self, mode: str | None = None) -> NDArray[np.uint8] | None:
         """Draw the scene (``rgb_array``: an H x W x 3 uint8 image; ``human``: a window).
@@ -392,22 +334,9 @@ class MobilityEnv(ParallelEnv):
             mode: accepted for wrappers that pass the mode again (RLlib's ``ParallelPettingZooEnv``
                 calls ``render(self.render_mode)``); it must be None or the env's ``render_mode``.
         """
-        if mode is not None and mode != self.render_mode:
-            raise ValueError(
-                f"invalid render mode {mode!r}: this env was made with render_mode={self.render_mode!r}; "
-                "pass render_mode to the constructor"
-            )
-        if self.render_mode is None:
-            return None
-        if not hasattr(self, "positions_m"):
-            raise RuntimeError("render() called before reset(): call reset() first")
-        from cv2x_marl.env.render import draw, show  # matplotlib: a heavy optional dependency
+        from cv2x_marl.env.render import render_env  # matplotlib: a heavy optional dependency
 
-        img = draw(self)
-        if self.render_mode == "human":
-            self._fig = show(img, self._fig)
-            return None
-        return img
+        return render_env(self, mode)
 
     def close(self) -> None:
         """Close the figure and stop the simulator's SUMO run (``vehicles.mobility=sumo``), if any."""

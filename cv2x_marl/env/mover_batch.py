@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step
 from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3, _widened
 from cv2x_marl.env.observation import _observation_kernel
+from cv2x_marl.env.options import EPISODE_ROLES, options_with_role
 from cv2x_marl.env.step import BASE_PREV, JAIN, N_SCALARS, PRR, PRR0, U0, U_BEST, U_NOW, U_PREV, U_START, U
 from cv2x_marl.sim import kernels
 
@@ -196,7 +197,7 @@ class MoverBatch:
             problem = batch_problem(env)
             if problem is not None:
                 raise ValueError(f"env copy {k} cannot be stepped in a batch: {problem}")
-            if _signature(env) != _signature(first):
+            if batch_signature(env) != batch_signature(first):
                 raise ValueError(f"env copy {k} differs from copy 0 in its scenario or options")
         self.envs = list(envs)
         self.k = len(envs)
@@ -389,14 +390,11 @@ class MoverBatch:
 
 #: env methods that change a copy's episode: through a batch they would leave its stacks stale
 EPISODE_METHODS = ("reset", "step", "step_mover")
-#: env options every copy of a batch must share: the batch reads them once (its kernel constants)
-SHARED_OPTIONS = (
-    "config", "truth_los", "max_cycles", "max_step_m", "settle_steps", "max_drift_m", "roi", "action_mode",
-    "normalise_reward", "reward_form", "p_min", "layout", "model_name", "mover_mask", "replan_every", "box_m",
-    "options",
-)  # fmt: skip
-#: env attributes not to be set on a batched copy: the shared options and what they load
-BATCH_ATTRIBUTES = (*SHARED_OPTIONS, "model", "links")
+#: env options every copy of a batch must share (every option an episode is made of, by role): the batch reads
+#: them once (its kernel constants)
+SHARED_OPTIONS = options_with_role(*EPISODE_ROLES)
+#: env attributes not to be set on a batched copy: the shared options, what is derived from them and what they load
+BATCH_ATTRIBUTES = (*SHARED_OPTIONS, "options", "layout", "mover_mask", "box_m", "model", "links")
 
 
 def refuse_episode_method(name: str, where: str) -> None:
@@ -408,6 +406,6 @@ def refuse_episode_method(name: str, where: str) -> None:
         )
 
 
-def _signature(env: MobilityEnv) -> tuple[str, ...]:
-    """What must agree between the copies of a batch: :data:`SHARED_OPTIONS` (by value)."""
-    return tuple(repr(getattr(env, name)) for name in SHARED_OPTIONS)
+def batch_signature(env: MobilityEnv) -> tuple[str, ...]:
+    """What must agree between the copies of a batch: the scenario and :data:`SHARED_OPTIONS` (by value)."""
+    return (repr(env.config), *(repr(getattr(env.options, name)) for name in SHARED_OPTIONS))

@@ -19,16 +19,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step as step_core
+from cv2x_marl.env.infos import INFO_KEYS
 from cv2x_marl.env.mover_links import MoverLinksStep
 
 if TYPE_CHECKING:
-    from cv2x_marl.env.mobility_env import MobilityEnv
-
-#: keys of every agent's info dict (all floats; ``clipped`` is 1.0 when the action left the box)
-INFO_KEYS = ("utility", "utility_start", "prr", "prr_start", "jain", "offset_x_m", "offset_y_m", "clipped")
+    from cv2x_marl.env.episode import EpisodeEnv
 
 
-def fast_mover(env: MobilityEnv) -> int | None:
+def fast_mover(env: EpisodeEnv) -> int | None:
     """The vehicle whose step :func:`step_mover` computes alone, or None when it does not apply (it needs
     snapshot mode, one mover and the individual reward; with observation version 3 or the shadowing field
     also the compiled link kernels: WINNER+ B1, ``truth_los`` snapshot or always)."""
@@ -39,7 +37,7 @@ def fast_mover(env: MobilityEnv) -> int | None:
     return int(movers[0]) if ok else None
 
 
-def _action(env: MobilityEnv, i: int, action: Any) -> NDArray[np.float64]:
+def _action(env: EpisodeEnv, i: int, action: Any) -> NDArray[np.float64]:
     """The mover's action as a float [2], refused (naming the agent) when not numeric, of another shape or not
     finite."""
     name = env.possible_agents[i]
@@ -52,7 +50,7 @@ def _action(env: MobilityEnv, i: int, action: Any) -> NDArray[np.float64]:
     return act
 
 
-def _move_links(env: MobilityEnv, i: int) -> None:
+def _move_links(env: EpisodeEnv, i: int) -> None:
     """The mover's links after its move: its row of ``link_p`` (and with the field or version 3, its column and
     received powers), then the observation model's measurements."""
     pos, column = env.positions_m, env.observer.needs_rx
@@ -69,7 +67,7 @@ def _move_links(env: MobilityEnv, i: int) -> None:
     env.observer.after_links_mover(env, env.mover_rows)
 
 
-def step_mover(env: MobilityEnv, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
+def step_mover(env: EpisodeEnv, action: Any) -> tuple[NDArray[np.float32], float, bool, dict[str, float]]:
     """One step in which only :attr:`MobilityEnv.fast_mover` moves.
 
     Returns:

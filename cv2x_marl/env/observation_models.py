@@ -44,7 +44,7 @@ from cv2x_marl.regression.model import load_model
 from cv2x_marl.rng import env_stream
 
 if TYPE_CHECKING:
-    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.episode import EpisodeEnv
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -69,19 +69,19 @@ class OwnState:
     best_m: FloatArray
 
     @classmethod
-    def start(cls, env: MobilityEnv) -> OwnState:
+    def start(cls, env: EpisodeEnv) -> OwnState:
         """Every field from the episode's start (utilities per target receiver)."""
         u = env.utility.copy() if env.normalise_reward else env.utility / np.maximum(env.target_count, 1)
         return cls(u, u.copy(), u.copy(), u.copy(), env.positions_m.copy())
 
-    def update(self, env: MobilityEnv) -> None:
+    def update(self, env: EpisodeEnv) -> None:
         """After a step of every vehicle (:func:`~cv2x_marl.env.step.own_state_updates`), in place."""
         step_core.own_state_updates(
             env.utility, env.target_count, env.normalise_reward, self.u_now, self.u_prev, self.u_best, self.best_m,
             env.positions_m,
         )  # fmt: skip
 
-    def update_mover(self, env: MobilityEnv, i: int, u: float, count: int) -> None:
+    def update_mover(self, env: EpisodeEnv, i: int, u: float, count: int) -> None:
         """After a step of vehicle ``i`` alone, with utility ``u`` over ``count`` targets."""
         self.u_prev[i], self.u_now[i], self.u_best[i], better = step_core.own_state_update(
             step_core.per_receiver(u, count, env.normalise_reward), self.u_now[i], self.u_best[i]
@@ -108,32 +108,32 @@ class ObservationModel:
     #: the simulator keeps each period's powers (traffic mode, :attr:`Simulator.keep_period_geometry`)
     keep_period_geometry: ClassVar[bool] = False
 
-    def __init__(self, env: MobilityEnv) -> None:
+    def __init__(self, env: EpisodeEnv) -> None:
         """Load what the version needs and refuse what it cannot do, before any reset."""
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         """The version's state at the episode's start."""
 
-    def after_links(self, env: MobilityEnv) -> None:
+    def after_links(self, env: EpisodeEnv) -> None:
         """After a step's links and utilities (every vehicle)."""
 
-    def after_reward(self, env: MobilityEnv) -> None:
+    def after_reward(self, env: EpisodeEnv) -> None:
         """After a step's reward (every vehicle)."""
 
-    def fill(self, env: MobilityEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
+    def fill(self, env: EpisodeEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
         """Write the version's entries of agents ``rows`` into ``obs`` [len(rows), size] (the v0 block is there)."""
 
-    def after_links_mover(self, env: MobilityEnv, rows: IntArray) -> None:
+    def after_links_mover(self, env: EpisodeEnv, rows: IntArray) -> None:
         """:meth:`after_links` when only the vehicle in ``rows`` moved."""
 
-    def after_reward_mover(self, env: MobilityEnv, i: int, u: float, count: int) -> None:
+    def after_reward_mover(self, env: EpisodeEnv, i: int, u: float, count: int) -> None:
         """:meth:`after_reward` when only vehicle ``i`` moved (utility ``u`` over ``count`` targets)."""
 
-    def fill_mover(self, env: MobilityEnv, obs: NDArray[np.float32], i: int) -> None:
+    def fill_mover(self, env: EpisodeEnv, obs: NDArray[np.float32], i: int) -> None:
         """:meth:`fill` of vehicle ``i`` alone (``obs`` [1, size])."""
         self.fill(env, obs, np.array([i], dtype=np.int64))
 
-    def state_parts(self, env: MobilityEnv) -> list[FloatArray]:
+    def state_parts(self, env: EpisodeEnv) -> list[FloatArray]:
         """Extra entries of the global state (:meth:`MobilityEnv.state`), ``state_per_pair`` per pair."""
         return []
 
@@ -155,7 +155,7 @@ def register_observation(model: type[ObservationModel]) -> type[ObservationModel
     return model
 
 
-def observation_model(env: MobilityEnv) -> ObservationModel:
+def observation_model(env: EpisodeEnv) -> ObservationModel:
     """The model of the env's observation version (:data:`OBSERVATIONS`)."""
     return OBSERVATIONS[env.layout.version](env)
 
@@ -163,7 +163,7 @@ def observation_model(env: MobilityEnv) -> ObservationModel:
 class OwnStateModel(ObservationModel):
     """The versions with own entries (1 to 4): the own state, and the plan versions 1 and 2 observe."""
 
-    def __init__(self, env: MobilityEnv) -> None:
+    def __init__(self, env: EpisodeEnv) -> None:
         if env.mode == "snapshot":  # the reach's search grid (the plan's, the ceiling's), refused before any reset
             try:
                 check_reach_grid(env, PLAN_GRID_M, f"observation version {self.version}'s plan")
@@ -172,15 +172,15 @@ class OwnStateModel(ObservationModel):
                     f"invalid env arguments max_cycles={env.max_cycles!r}, max_step_m={env.max_step_m!r}: {exc}"
                 ) from None
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         env.own = OwnState.start(env)
         env.plan_m = env.positions_m.copy() if cached_plan_m is None else cached_plan_m.copy()
 
-    def after_reward(self, env: MobilityEnv) -> None:
+    def after_reward(self, env: EpisodeEnv) -> None:
         assert env.own is not None
         env.own.update(env)
 
-    def after_reward_mover(self, env: MobilityEnv, i: int, u: float, count: int) -> None:
+    def after_reward_mover(self, env: EpisodeEnv, i: int, u: float, count: int) -> None:
         assert env.own is not None
         env.own.update_mover(env, i, u, count)
 
@@ -188,7 +188,7 @@ class OwnStateModel(ObservationModel):
 class PlanModel(OwnStateModel):
     """Versions 1 and 2: the own entries (:data:`~cv2x_marl.env.observation.OWN_V1_NAMES`) with a plan."""
 
-    def fill(self, env: MobilityEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
+    def fill(self, env: EpisodeEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
         own, lay = env.own, env.layout
         assert own is not None and rows.size == env.n, "the block fills every vehicle"
         step_core.own_v1_block(
@@ -196,7 +196,7 @@ class PlanModel(OwnStateModel):
             own.u_best, own.best_m, env.plan_m, env.positions_m,
         )  # fmt: skip
 
-    def fill_mover(self, env: MobilityEnv, obs: NDArray[np.float32], i: int) -> None:
+    def fill_mover(self, env: EpisodeEnv, obs: NDArray[np.float32], i: int) -> None:
         own, lay, pos = env.own, env.layout, env.positions_m
         assert own is not None
         step_core.own_v1_entries(
@@ -213,14 +213,14 @@ class ModelPlanObservation(PlanModel):
     version = 1
     per_neighbour, own = VERSION_BLOCKS[1]
 
-    def __init__(self, env: MobilityEnv) -> None:
+    def __init__(self, env: EpisodeEnv) -> None:
         try:
             env.model = load_model(Path(env.model_name))
         except Exception as exc:
             raise ValueError(f"invalid env argument model={env.model_name!r}: {exc}") from exc
         super().__init__(env)
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         super().reset(env, episode_seed, cached_plan_m)
         movers = np.flatnonzero(env.mover_mask)
         if cached_plan_m is None and env.mode == "snapshot" and movers.size:
@@ -237,22 +237,22 @@ class SensingPlanObservation(ModelPlanObservation):
     version = 2
     per_neighbour, own = VERSION_BLOCKS[2]
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         OwnStateModel.reset(self, env, episode_seed, cached_plan_m)
         movers = np.flatnonzero(env.mover_mask)
         if cached_plan_m is None and env.mode == "snapshot" and movers.size:
             env.plan_m[movers] = sensing_plan(env, movers)
 
-    def after_reward(self, env: MobilityEnv) -> None:
+    def after_reward(self, env: EpisodeEnv) -> None:
         super().after_reward(env)
         self._replan(env)
 
-    def after_reward_mover(self, env: MobilityEnv, i: int, u: float, count: int) -> None:
+    def after_reward_mover(self, env: EpisodeEnv, i: int, u: float, count: int) -> None:
         super().after_reward_mover(env, i, u, count)
         self._replan(env)
 
     @staticmethod
-    def _replan(env: MobilityEnv) -> None:
+    def _replan(env: EpisodeEnv) -> None:
         """With ``replan_every``: a new sensing plan from where everyone is, while the movers still move."""
         every = env.replan_every
         if every is None or env.mode != "snapshot" or env.t % every or env.t >= env.max_cycles - env.settle_steps:
@@ -272,19 +272,19 @@ class MeasuredObservation(OwnStateModel):
     state_per_pair = 2
     needs_rx = True
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         super().reset(env, episode_seed, cached_plan_m)
         o = env.options
         rng = env_stream(episode_seed, "measurement")
         env.measure = Measurements.start(env.rx_dbm, env.link_p, o.sensing_window, o.rsrp_error_db, rng)
 
-    def after_links(self, env: MobilityEnv) -> None:
+    def after_links(self, env: EpisodeEnv) -> None:
         env.measure.update(env.rx_dbm, env.link_p)  # one more period of sensing at the new positions
 
-    def after_links_mover(self, env: MobilityEnv, rows: IntArray) -> None:
+    def after_links_mover(self, env: EpisodeEnv, rows: IntArray) -> None:
         env.measure.update(env.rx_dbm, env.link_p, rows)  # every pair's draws, the mover's column of reports
 
-    def fill(self, env: MobilityEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
+    def fill(self, env: EpisodeEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
         assert env.co_table is not None and env.geometry is not None and env.own is not None
         m, cfg, own = env.measure, env.config, env.own
         slot, sub = np.divmod(env.resource, cfg.sps.n_subchannels)
@@ -299,10 +299,10 @@ class MeasuredObservation(OwnStateModel):
             left / env.horizon, moving * env.max_step_m,
         )  # fmt: skip
 
-    def fill_mover(self, env: MobilityEnv, obs: NDArray[np.float32], i: int) -> None:
+    def fill_mover(self, env: EpisodeEnv, obs: NDArray[np.float32], i: int) -> None:
         self.fill(env, obs, np.array([i], dtype=np.int64))
 
-    def state_parts(self, env: MobilityEnv) -> list[FloatArray]:
+    def state_parts(self, env: EpisodeEnv) -> list[FloatArray]:
         """Every vehicle's RSRP reports, scaled as in the observation, and their ages / window [tx, rx]."""
         return [scaled_rsrp(env.measure.rsrp_dbm).ravel(), (env.measure.age / env.measure.window).ravel()]
 
@@ -317,14 +317,14 @@ class RoadMeasuredObservation(OwnStateModel):
 
     keep_period_geometry = True
 
-    def reset(self, env: MobilityEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
+    def reset(self, env: EpisodeEnv, episode_seed: int, cached_plan_m: FloatArray | None) -> None:
         super().reset(env, episode_seed, cached_plan_m)
         env.traffic_measure = tmeas.start_measurements(env, episode_seed)
 
-    def after_links(self, env: MobilityEnv) -> None:
+    def after_links(self, env: EpisodeEnv) -> None:
         env.traffic_measure.update(env.sim)
 
-    def fill(self, env: MobilityEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
+    def fill(self, env: EpisodeEnv, obs: NDArray[np.float32], rows: IntArray) -> None:
         tmeas.fill_observations(env, obs, rows)
 
 

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from cv2x_marl import schema
 from cv2x_marl.checks import is_int, is_real
 from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
-from cv2x_marl.env.observation import VERSIONS
+from cv2x_marl.env.observation import VERSION_BLOCKS, VERSIONS
 
 #: ``snapshot``: positions and SPS resources of a stage-1 snapshot; ``traffic``: vehicles drive
 MODES = ("snapshot", "traffic")
@@ -102,11 +102,23 @@ ACCEL_MPS2 = 2.6
 DECEL_MPS2 = 3.4
 
 
-def _option(default: Any, doc: str, unit: str = "", shown: str | None = None, **rules: Any) -> Any:
-    """A field with :func:`cv2x_marl.schema.key_field`'s metadata (``rules``: its ``lo``, ``hi``, ``choices``,
-    ``lo_open``, ``allowed``) and ``shown``: the default as the table writes it (when not the value)."""
+#: the role of an option: what it shapes (the schema's ``role`` of each field; :func:`options_with_role`)
+ROLES = {
+    "start": "the episode's start: the scenario, who moves, the link truth (the start cache's key)",
+    "observation": "what an agent observes",
+    "action": "what an action does and for how long: the dynamics and the episode's length",
+    "reward": "the reward (a learned policy is judged on the utility whatever its reward)",
+    "run": "how the env runs, not what an episode is: rendering, caches, start pools, extra infos",
+}
+
+
+def _option(role: str, default: Any, doc: str, unit: str = "", shown: str | None = None, **rules: Any) -> Any:
+    """A field of role ``role`` (:data:`ROLES`) with :func:`cv2x_marl.schema.key_field`'s metadata (``rules``: its
+    ``lo``, ``hi``, ``choices``, ``lo_open``, ``allowed``) and ``shown``: the default as the table writes it."""
+    if role not in ROLES:
+        raise ValueError(f"unknown option role {role!r}; allowed: {', '.join(ROLES)}")
     base = schema.key_field(default, doc, unit, **rules)
-    return field(default=default, metadata={**base.metadata, "shown": shown})
+    return field(default=default, metadata={**base.metadata, "shown": shown, "role": role})
 
 
 def refuse(name: str, value: Any, allowed: str) -> typing.NoReturn:
@@ -158,6 +170,7 @@ class EnvOptions:
     """Options of the controlled-mobility env (the keyword arguments of every ``cv2x/*`` env id)."""
 
     preset: str = _option(
+        "start",
         "paper",
         "scenario preset (`paper`; `highway`: the standard's Mode 4 procedures, of which the reward's evaluators "
         "model neither the SCI gate nor a per-UE reselection inside the evaluated period (they hold the "
@@ -165,15 +178,17 @@ class EnvOptions:
         allowed="a preset name (docs/config.md)",
     )
     overrides: Sequence[str] = _option(
+        "start",
         (),
         "`section.key=value` strings (see `docs/config.md`); a single string is one assignment",
         shown="()",
         allowed="a section.key=value string or a list of them",
     )
     config: ScenarioConfig | None = _option(  # noqa: RUF009 - a field() whose default is None
-        None, "a full `ScenarioConfig` instead of preset + overrides", allowed="null or a ScenarioConfig"
+        "start", None, "a full `ScenarioConfig` instead of preset + overrides", allowed="null or a ScenarioConfig"
     )
     mode: str = _option(
+        "start",
         "snapshot",
         "`snapshot`: positions and SPS resources of a stage-1 snapshot (after the warm-up), only the agents' "
         "offsets move vehicles, expected link success; `traffic`: vehicles drive the roads, SPS runs one 100-ms "
@@ -181,6 +196,7 @@ class EnvOptions:
         choices=MODES,
     )
     max_cycles: int = _option(
+        "action",
         100,
         "steps per episode (`MAX_CYCLES` at most); all agents are truncated together, `agents == []` afterwards",
         "steps",
@@ -188,6 +204,7 @@ class EnvOptions:
         hi=MAX_CYCLES,
     )
     max_step_m: float = _option(
+        "action",
         5.0,
         "offset of a full action; actions are `Box(-1, 1, (2,), float32)`; at most the diagonal of the scene's "
         "road box (636.4 m for `paper`, 2000.1 m for `highway`: a longer step leaves the scene). With observation "
@@ -200,31 +217,41 @@ class EnvOptions:
         lo_open=True,
     )
     movers: Sequence[int] | None = _option(
+        "start",
         None,
         "indices of vehicles whose actions move them (null: all); the others' actions are ignored",
         shown="all",
         allowed="null or a list of vehicle indices 0 .. N - 1",
     )
     reward: str = _option(
+        "reward",
         "individual",
         "`individual` (own eq. 12 utility), `team` (mean over agents), `mixed` (`local_ratio` own + "
         "`1 - local_ratio` team), `difference` (the team objective minus its value with the agent back at its start: "
         "its own contribution to the team; snapshot mode, team_objective utility)",
         choices=REWARDS,
     )
-    local_ratio: float = _option(0.5, "weight of the own utility in `mixed`", lo=0.0, hi=1.0)
-    normalise_reward: bool = _option(False, "divide each utility by the number of target receivers")
+    local_ratio: float = _option("reward", 0.5, "weight of the own utility in `mixed`", lo=0.0, hi=1.0)
+    normalise_reward: bool = _option("reward", False, "divide each utility by the number of target receivers")
     p_min: float = _option(
-        1e-3, "clip of P inside the log of eq. 12", lo=0.0, hi=1.0, lo_open=True, allowed="finite number in (0, 1)"
+        "reward",
+        1e-3,
+        "clip of P inside the log of eq. 12",
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
+        allowed="finite number in (0, 1)",
     )
     n_neighbours: int | None = _option(
+        "observation",
         None,
         "vehicles described in each observation, nearest first (null: N - 1)",
         shown="N - 1",
         allowed="null or an integer in [1, N - 1]",
     )
-    scale_m: float = _option(100.0, "length unit of the observation", "m", lo=0.0, lo_open=True)
+    scale_m: float = _option("observation", 100.0, "length unit of the observation", "m", lo=0.0, lo_open=True)
     max_drift_m: float | None = _option(
+        "action",
         None,
         "bound on the distance from the start position (offset from the road position in traffic mode; "
         "null: none, traffic mode: 10 m)",
@@ -233,25 +260,28 @@ class EnvOptions:
         lo=0.0,
         lo_open=True,
     )
-    roi: bool = _option(False, "keep vehicles inside the region of interest (the road box)")
+    roi: bool = _option("action", False, "keep vehicles inside the region of interest (the road box)")
     truth_los: str = _option(
+        "start",
         "snapshot",
         "LOS state of a moved link: the snapshot's, re-derived from the `geometry`, or `always` "
         "(`cv2x_marl.config.TRUTH_LOS`)",
         choices=TRUTH_LOS,
     )
     render_mode: str | None = _option(
-        None, "`rgb_array` (headless, matplotlib Agg) or `human`", allowed="None | rgb_array | human"
+        "run", None, "`rgb_array` (headless, matplotlib Agg) or `human`", allowed="None | rgb_array | human"
     )
     observation: int = _option(
-        0, "observation version (docs/env.md, below)", allowed=" | ".join(str(v) for v in VERSIONS)
+        "observation", 0, "observation version (docs/env.md, below)", allowed=" | ".join(str(v) for v in VERSIONS)
     )
     privileged: bool = _option(
+        "observation",
         False,
         "versions 1 and 2 only: also observe the true success of every neighbour link (for upper-bound "
         "studies; a vehicle cannot know it)",
     )
     reward_form: str = _option(
+        "reward",
         "utility",
         "`utility`: the reward is the utility after the step; `improvement`: its change over the step "
         "(potential-based shaping: an episode's rewards sum to final minus start, exactly what the evaluation "
@@ -259,6 +289,7 @@ class EnvOptions:
         choices=REWARD_FORMS,
     )
     settle_steps: int = _option(
+        "action",
         0,
         "the last `settle_steps` steps ignore actions (vehicles stay; with `reward_form=utility` they weight "
         "the final position); below `max_cycles`",
@@ -266,11 +297,13 @@ class EnvOptions:
         lo=0,
     )
     model: str = _option(
+        "observation",
         "paper-table2",
         "the two-distance model of observation versions >= 1 (or a fit folder / its `model.json` from `cv2x-marl fit`)",
         allowed="paper-table2 or a model path",
     )
     action_mode: str = _option(
+        "action",
         "offset",
         "`offset`: the action is the step (`x max_step_m`); `plan_residual` (observation >= 1, snapshot mode): "
         "the action is added to the straight step towards the observed plan, `clip((plan - position) / "
@@ -279,6 +312,7 @@ class EnvOptions:
         choices=ACTION_MODES,
     )
     replan_every: int | None = _option(
+        "observation",
         None,
         "observation version 2: recompute the sensing plan every `replan_every` steps from where every vehicle "
         "is then, over what is still reachable (null: once, at reset); the shipped multi-agent models use 50",
@@ -286,6 +320,7 @@ class EnvOptions:
         lo=1,
     )
     reset_cache: int = _option(
+        "run",
         0,
         "keep up to this many episode starts (stage-1 snapshot, links, plan; traffic mode: the simulator after its "
         "warm-up, copied for each episode) in a process-wide cache shared by envs with the same settings; "
@@ -295,6 +330,7 @@ class EnvOptions:
         lo=0,
     )
     traffic_action: str = _option(
+        "action",
         "offset",
         "traffic mode: `offset` moves the radio position off the road position (bounded by `max_drift_m`; the "
         "traffic does not see it); `speed`: `action[0]` sets a target speed from 0 (-1) to "
@@ -305,18 +341,21 @@ class EnvOptions:
         choices=TRAFFIC_ACTIONS,
     )
     team_objective: str = _option(
+        "reward",
         "utility",
         "what the team part of `team` / `mixed` rewards averages over the vehicles: `utility` (their eq. 12 "
         "utilities, per target receiver with `normalise_reward`) or `prr` (their PRR: the network mean PRR)",
         choices=TEAM_OBJECTIVES,
     )
     shadow_field: bool = _option(
+        "start",
         False,
         "snapshot mode: shadowing that follows the vehicles (`cv2x_marl.sim.shadow_field`: each pair's shadowing "
         "decorrelates with how far its ends moved, `channel.shadowing_decorrelation_m`; equal to the snapshot's at "
         "the start); false: every pair keeps the snapshot's shadowing wherever the vehicles move",
     )
     sensing_window: int = _option(
+        "observation",
         SENSING_WINDOW,
         "observation versions 3 and 4: the periods (100 ms each) over which a vehicle averages each neighbour's RSRP "
         "(the 1000 ms sensing window of TS 36.213 clause 14.1.1.6)",
@@ -325,6 +364,7 @@ class EnvOptions:
         hi=1000,
     )
     rsrp_error_db: float = _option(
+        "observation",
         RSRP_ERROR_DB,
         "observation versions 3 and 4: standard deviation of the Gaussian error of each RSRP report (the +-6 dB "
         "absolute RSRP accuracy of TS 36.133 clause 9.1.2.1 read as a 95 % bound: 6 / 2)",
@@ -333,6 +373,7 @@ class EnvOptions:
     )
 
     accel_mps2: float = _option(
+        "action",
         ACCEL_MPS2,
         "`traffic_action=speed` on the lane model (`vehicles.mobility=model`): the most a commanded speed rises "
         "per second (SUMO's default passenger-car `accel`; on SUMO its vehicle type's bounds apply: the default only)",
@@ -341,6 +382,7 @@ class EnvOptions:
         lo_open=True,
     )
     speed_command: str = _option(
+        "action",
         "target",
         "`traffic_action=speed` on the lane model: what `action[0]` in [-1, 1] commands: `target`, a target speed "
         "from 0 to `vehicles.speed_max_mps`; `change`, a change of the own speed over the period, up to "
@@ -350,6 +392,7 @@ class EnvOptions:
         choices=SPEED_COMMANDS,
     )
     decel_mps2: float = _option(
+        "action",
         DECEL_MPS2,
         "`traffic_action=speed` on the lane model: the most a commanded speed falls per second (AASHTO's "
         "comfortable deceleration; on SUMO its vehicle type's bounds apply: the default only)",
@@ -358,18 +401,21 @@ class EnvOptions:
         lo_open=True,
     )
     drive_observation: bool = _option(
+        "observation",
         False,
         "`traffic_action=speed` on the lane model or SUMO's generated network: append the driving entries to the "
         "observation (own speed / limit, heading, lane, lanes left / right, time left; "
         "`cv2x_marl.env.observation.OWN_DRIVE_NAMES`)",
     )
     episode_metrics: bool = _option(
+        "run",
         False,
         "infos also carry `utility_mean`, `prr_mean` and `jain_mean`, the means of `utility`, `prr` and `jain` over "
         "the episode's steps so far (at reset: the start's), and with `drive_observation` `speed_mps` and `lane`",
     )
 
     start_pool: int = _option(
+        "run",
         0,
         "`reset()` without a seed starts from one of the first `start_pool` seeds of the protocol's "
         "training list (`cv2x_marl.env.seeds.TRAIN_SEEDS`, disjoint from every task's held-out list), drawn by the "
@@ -409,8 +455,8 @@ class EnvOptions:
                 refuse(f.name, value, allowed_text(f, tp, optional))
         if self.render_mode not in (None, *RENDER_MODES):
             refuse("render_mode", self.render_mode, "None | rgb_array | human")
-        if self.observation not in VERSIONS or isinstance(self.observation, bool):
-            refuse("observation", self.observation, " | ".join(str(v) for v in VERSIONS))
+        if self.observation not in VERSION_BLOCKS or isinstance(self.observation, bool):  # the registered versions
+            refuse("observation", self.observation, " | ".join(str(v) for v in VERSION_BLOCKS))
         if self.config is not None and not isinstance(self.config, ScenarioConfig):
             refuse("config", self.config, "null or a ScenarioConfig")
         if not isinstance(self.model, str):
@@ -540,6 +586,22 @@ class EnvOptions:
 def option_names() -> tuple[str, ...]:
     """Every option's name, in the schema's order (the keyword arguments of every env id)."""
     return tuple(f.name for f in dataclasses.fields(EnvOptions))
+
+
+def options_with_role(*roles: str) -> tuple[str, ...]:
+    """The names of the options whose role is one of ``roles`` (:data:`ROLES`), in the schema's order."""
+    unknown = [r for r in roles if r not in ROLES]
+    if unknown:
+        raise ValueError(f"unknown option role(s) {', '.join(unknown)}; allowed: {', '.join(ROLES)}")
+    return tuple(f.name for f in dataclasses.fields(EnvOptions) if f.metadata["role"] in roles)
+
+
+#: the options an episode is made of (every role but ``run``): the start cache's key and what the copies of a
+#: batch must share (:func:`cv2x_marl.env.starts.start_key`, :func:`cv2x_marl.env.mover_batch.batch_signature`)
+EPISODE_ROLES = ("start", "observation", "action", "reward")
+#: the options a saved policy keeps, so it is evaluated on what it was trained to see and do
+#: (:func:`cv2x_marl.experiments.evaluate.saved_env`): its observation and its actions, not its reward
+POLICY_ROLES = ("observation", "action")
 
 
 def options_markdown() -> str:

@@ -60,3 +60,22 @@ def show(img: NDArray[np.uint8], fig: Any) -> Any:
         fig.axes[0].images[0].set_data(img)
     plt.pause(0.001)
     return fig
+
+
+def render_env(env: Any, mode: str | None = None) -> NDArray[np.uint8] | None:
+    """:meth:`MobilityEnv.render <cv2x_marl.env.mobility_env.MobilityEnv.render>`: the scene as an image
+    (``rgb_array``) or in a window (``human``, the figure kept on ``env._fig``)."""
+    if mode is not None and mode != env.render_mode:
+        raise ValueError(
+            f"invalid render mode {mode!r}: this env was made with render_mode={env.render_mode!r}; "
+            "pass render_mode to the constructor"
+        )
+    if env.render_mode is None:
+        return None
+    if not hasattr(env, "positions_m"):
+        raise RuntimeError("render() called before reset(): call reset() first")
+    img = draw(env)
+    if env.render_mode == "human":
+        env._fig = show(img, env._fig)
+        return None
+    return img

@@ -19,7 +19,7 @@ from cv2x_marl.env import step as step_core
 from cv2x_marl.env.team_search import difference_rewards
 
 if TYPE_CHECKING:
-    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.episode import EpisodeEnv
     from cv2x_marl.env.options import EnvOptions
 
 FloatArray = NDArray[np.float64]
@@ -41,7 +41,7 @@ class RewardModel:
         self.improvement = options.reward_form == "improvement"
         self.previous: FloatArray = np.zeros(0)
 
-    def base(self, env: MobilityEnv, u: FloatArray) -> FloatArray:
+    def base(self, env: EpisodeEnv, u: FloatArray) -> FloatArray:
         """[N] the reward's base of utilities ``u`` [N] (what the ``utility`` form returns)."""
         if self.kind == "individual":
             return u
@@ -54,11 +54,11 @@ class RewardModel:
             return team
         return self.local_ratio * u + (1.0 - self.local_ratio) * team
 
-    def reset(self, env: MobilityEnv) -> None:
+    def reset(self, env: EpisodeEnv) -> None:
         """At the episode's start: the reference of the first step's improvement."""
         self.previous = self.base(env, env.utility).copy()
 
-    def step(self, env: MobilityEnv) -> FloatArray:
+    def step(self, env: EpisodeEnv) -> FloatArray:
         """[N] the rewards of the step just taken (:func:`~cv2x_marl.env.step.step_rewards`)."""
         return step_core.step_rewards(self.base(env, env.utility), self.previous, self.improvement)
 

@@ -26,6 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cv2x_marl.env.options import EPISODE_ROLES, options_with_role
+from cv2x_marl.env.seeds import training_pool
 from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import SnapshotLinks
 
@@ -60,13 +62,18 @@ def copy_simulator(sim: Simulator) -> Simulator:
 START_CACHE: OrderedDict[tuple[Any, ...], Start] = OrderedDict()
 
 
+#: the options of :func:`start_key` (the scenario's own, ``preset``, ``overrides`` and ``config``, enter as the
+#: scenario they give)
+START_OPTIONS = tuple(n for n in options_with_role(*EPISODE_ROLES) if n not in ("preset", "overrides", "config"))
+
+
 def start_key(env: MobilityEnv, seed: int) -> tuple[Any, ...]:
-    """Everything a start depends on: the scenario, the link truth and what the plan reads
-    (observation version, movers, reach, p_min, the model), and the seed."""
-    movers = tuple(int(i) for i in np.flatnonzero(env.mover_mask))
-    reach = (env.max_cycles, env.settle_steps, env.max_step_m, env.max_drift_m, env.roi, env.p_min,
-             env.options.shadow_field)  # fmt: skip
-    return (repr(env.config), env.truth_los, env.mode, repr(env.layout), env.model_name, movers, reach, int(seed))
+    """Everything a start may depend on: the scenario, every option an episode is made of (by role:
+    :data:`~cv2x_marl.env.options.EPISODE_ROLES`; the plan reads the observation, the reach and ``p_min``) and
+    the seed."""
+    o = env.options
+    values = tuple(repr(getattr(o, name)) for name in START_OPTIONS)
+    return (repr(env.config), values, int(seed))
 
 
 def cached_start(env: MobilityEnv, seed: int) -> Start | None:
@@ -93,7 +100,5 @@ def cache_size(env: MobilityEnv) -> int:
 def pool_seed(env: MobilityEnv, rng: np.random.Generator) -> int:
     """The episode seed of a ``reset()`` without a seed when ``start_pool`` is set: one of the pool's
     seeds, uniformly, drawn from the env's generator ``rng``."""
-    from cv2x_marl.env.seeds import training_pool
-
     pool = training_pool(env.start_pool)
     return int(pool[int(rng.integers(len(pool)))])

@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 from cv2x_marl.checks import is_int
 from cv2x_marl.env import starts
 from cv2x_marl.env.mobility_env import INFO_KEYS, check_copies
-from cv2x_marl.env.mover_batch import MoverBatch, _signature, batch_problem, refuse_episode_method
+from cv2x_marl.env.mover_batch import MoverBatch, batch_problem, batch_signature, refuse_episode_method
 from cv2x_marl.env.single import AGENT, SingleMoverEnv
 
 _MODES = ", ".join(m.value for m in AutoresetMode)
@@ -315,9 +315,9 @@ class SingleMoverVectorEnv(VectorEnv):
 
 def _settings_of(par: Any) -> tuple[Any, ...]:
     """Everything a copy's state after a reset depends on besides the episode seed and the horizon: the start
-    (:func:`~cv2x_marl.env.starts.start_key`) and every option the batch shares (``mover_batch._signature``:
+    (:func:`~cv2x_marl.env.starts.start_key`) and every option the batch shares (``mover_batch.batch_signature``:
     rewards, observation layout, measurements)."""
-    return (*starts.start_key(par, 0)[:-1], *_signature(par))
+    return (*starts.start_key(par, 0)[:-1], *batch_signature(par))
 
 
 def _info_row(info: dict[str, Any]) -> list[float]:

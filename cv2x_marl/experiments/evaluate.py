@@ -27,6 +27,7 @@ import numpy as np
 
 from cv2x_marl.checks import is_int
 from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.options import POLICY_ROLES, options_with_role
 from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy
@@ -189,7 +190,8 @@ def expand_policies(specs: Sequence[str], flag: str = "--policy") -> list[str]:
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
     """The env id and the options that shape observations, actions and dynamics of a model saved by
     ``cv2x-marl train`` (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3
-    file). The reward options are not taken: every method is judged on the same utility."""
+    file): those of role ``observation`` and ``action`` (:data:`~cv2x_marl.env.options.POLICY_ROLES`). The
+    reward options are not taken: every method is judged on the same utility."""
     import json
 
     cfg_path = Path(path).parent / "train_config.json"
@@ -197,24 +199,7 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
         return None, {}
     try:
         cfg = json.loads(cfg_path.read_text())
-        keep = (
-            "observation",
-            "privileged",
-            "model",
-            "n_neighbours",
-            "scale_m",
-            "settle_steps",
-            "reward_form",
-            "action_mode",
-            "replan_every",
-            "max_cycles",
-            "max_step_m",
-            "max_drift_m",
-            "roi",
-            "speed_command",
-            "sensing_window",
-            "rsrp_error_db",
-        )
+        keep = options_with_role(*POLICY_ROLES)  # what it observes and what its actions do
         return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"cannot read the training configuration {cfg_path}: {exc}") from exc
