@@ -128,7 +128,7 @@ class Measurements:
         """One period at the current positions: each link's packet, decoded or not, and the reports.
 
         The draws cover every pair (:func:`draw_period`'s order), whatever ``receivers``; the reports of
-        the receivers' columns are updated (compiled, :func:`_update_columns`), bit for bit the same
+        the receivers' columns are updated (compiled, :func:`update_columns`), bit for bit the same
         whether one column or all are.
 
         Args:
@@ -144,7 +144,7 @@ class Measurements:
         cols = _ALL.get(n) if receivers is None else receivers
         if cols is None:
             cols = _ALL[n] = np.arange(n, dtype=np.int64)
-        _update_columns(
+        update_columns(
             self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, np.ascontiguousarray(rx_dbm),
             np.ascontiguousarray(p), uniform, fade, normal, self.error_db, cols,
         )  # fmt: skip
@@ -192,7 +192,7 @@ def _start_window(
     normal: FloatArray,
     error_db: float,
 ) -> None:
-    """``W`` periods of :func:`_update_columns` for every receiver with the same ``rx_dbm`` and ``p`` and the
+    """``W`` periods of :func:`update_columns` for every receiver with the same ``rx_dbm`` and ``p`` and the
     draws ``uniform``, ``fade``, ``normal`` [W, N, N], in one pass: the samples and ages period by period,
     the report once, from the last period's error (the earlier reports are all overwritten: the window
     then holds every period, so a pair heard in any period is heard in the last report's window)."""
@@ -222,7 +222,7 @@ _ALL: dict[int, NDArray[np.int64]] = {}
 
 
 @njit(cache=True)
-def _update_columns(
+def update_columns(
     power_mw: FloatArray,
     count: FloatArray,
     head: int,

@@ -7,7 +7,7 @@ all of them with one numba call, :func:`_mover_steps`, which for each copy calls
 ``step_mover`` calls (:mod:`cv2x_marl.env.step`: the action clip, plan residual, settle phase, drift
 and region bounds; the eq. 12 utility, PRR and Jain's index; the pair-geometry update; the reward;
 the version-1 own state and entries), the mover's links (:func:`cv2x_marl.sim.kernels.mover_row_success`'s
-per-link code) and the observation kernel (:func:`cv2x_marl.env.observation._observation_kernel`).
+per-link code) and the observation kernel (:func:`cv2x_marl.env.observation.observation_kernel`).
 The results are bit-identical to ``step_mover`` by construction (and tested: ``tests/env/test_vector.py``).
 Observation version 3 (``cv2x/SingleMover-v3``) steps through :func:`cv2x_marl.env.mover_batch_v3._mover_steps_v3`
 instead: the same step plus the shadowing field's row, the mover's column of links and its measurements
@@ -30,12 +30,17 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
-from cv2x_marl.env import step
-from cv2x_marl.env.mover_batch_v3 import V3Stacks, _mover_steps_v3, _widened
-from cv2x_marl.env.observation import _observation_kernel
+from cv2x_marl.env.mover_batch_v3 import V3Stacks, mover_steps_v3, widened
+from cv2x_marl.env.mover_kernels import (
+    CopyStacks,
+    LinkConstants,
+    ObservationConstants,
+    StepConstants,
+    StepOutputs,
+    mover_steps,
+)
 from cv2x_marl.env.options import EPISODE_ROLES, options_with_role
 from cv2x_marl.env.step import BASE_PREV, JAIN, N_SCALARS, PRR, PRR0, U0, U_BEST, U_NOW, U_PREV, U_START, U
 from cv2x_marl.sim import kernels
@@ -62,122 +67,6 @@ def batch_problem(env: MobilityEnv) -> str | None:
     if env.config.channel.pathloss != "winner_b1" or env.truth_los == "geometry":
         return "the compiled link kernels need channel.pathloss winner_b1 and truth_los snapshot or always"
     return None
-
-
-@njit(cache=True)
-def _mover_steps(
-    active: NDArray[np.bool_],
-    actions: FloatArray,
-    mover: NDArray[np.int64],
-    t: NDArray[np.int64],
-    positions_m: FloatArray,
-    start_m: FloatArray,
-    plan_m: FloatArray,
-    best_m: FloatArray,
-    disp_m: FloatArray,
-    dist2_m2: FloatArray,
-    co_table: NDArray[np.int64],
-    target: NDArray[np.bool_],
-    p: FloatArray,
-    los_row: NDArray[np.bool_],
-    gain_row_db: FloatArray,
-    level_db: FloatArray,
-    scalars: FloatArray,
-    period_m: FloatArray,
-    wb1: FloatArray,
-    range2_m2: float,
-    link_model: int,
-    per_sinr_db: FloatArray,
-    per: FloatArray,
-    threshold_db: float,
-    sensitivity_dbm: float,
-    max_step_m: float,
-    max_cycles: int,
-    settle_steps: int,
-    max_drift_m: float,
-    roi: bool,
-    box_m: FloatArray,
-    residual: bool,
-    normalise: bool,
-    improvement: bool,
-    p_min: float,
-    version: int,
-    k_neighbours: int,
-    scale_m: float,
-    region_m: float,
-    interferer_range_m: float,
-    obs_clip: float,
-    size: int,
-    extra: int,
-    own_v1_offset: int,
-    alpha: FloatArray,
-    beta: FloatArray,
-    gamma: FloatArray,
-    logistic: bool,
-    model_p_min: float,
-    obs_out: NDArray[np.float32],
-    reward_out: FloatArray,
-    done_out: NDArray[np.bool_],
-    info_out: FloatArray,
-) -> None:
-    """Step every ``active`` copy k: what ``MobilityEnv.step_mover(actions[k])`` does, in place.
-
-    Shapes (K copies of N vehicles, G co-channel slots): ``actions`` [K, 2]; ``mover``, ``t`` [K];
-    ``positions_m``, ``start_m`` [K, N, 2]; ``plan_m``, ``best_m`` [K, 2] (the mover's); ``disp_m``
-    [K, 2, N, N]; ``dist2_m2`` [K, N, N]; ``co_table`` [K, N, G]; ``target``, ``p`` [K, N, N];
-    ``los_row``, ``gain_row_db``, ``level_db`` [K, N] (the mover's link constants);
-    ``scalars`` [K, N_SCALARS]. Outputs: ``obs_out`` [K, size], ``reward_out``, ``done_out`` [K],
-    ``info_out`` [K, 8] (``INFO_KEYS``). Lengths in m, powers in dBm / dB.
-    """
-    n_copies = actions.shape[0]
-    n = positions_m.shape[1]
-    rows = np.zeros(1, dtype=np.int64)
-    drift = np.empty((n, 2))
-    for k in range(n_copies):
-        if not active[k]:
-            continue
-        i = mover[k]
-        pos = positions_m[k]
-        x_old = pos[i, 0]
-        y_old = pos[i, 1]
-        # the action and the bounds (step.move_vehicle, as MobilityEnv.step / step_mover)
-        clipped = step.is_clipped(actions[k, 0], actions[k, 1])
-        x, y = step.move_vehicle(
-            actions[k, 0], actions[k, 1], x_old, y_old, start_m[k, i, 0], start_m[k, i, 1], plan_m[k, 0],
-            plan_m[k, 1], max_step_m, max_step_m, residual, t[k] >= max_cycles - settle_steps, max_drift_m, roi,
-            box_m[0], box_m[1],
-        )  # fmt: skip
-        pos[i, 0] = x
-        pos[i, 1] = y
-        t[k] += 1
-        # the mover's links, then eq. 12, the summaries, the reward, the own state and the info row
-        step.mover_row_into(
-            x, y, pos, i, target[k, i], p[k, i], los_row[k], gain_row_db[k], level_db[k], period_m, wb1, range2_m2,
-            link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
-        )  # fmt: skip
-        reward_out[k] = step.record_mover_step(
-            i, x, y, x_old, y_old, clipped, pos, p[k, i], target[k, i], scalars[k], best_m[k], disp_m[k],
-            dist2_m2[k], period_m, p_min, normalise, improvement, version >= 1, info_out[k],
-        )  # fmt: skip
-        done_out[k] = t[k] >= max_cycles
-        # observation (MobilityEnv.build for the mover, then its own v1 entries)
-        for j in range(n):
-            drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
-            drift[j, 1] = pos[j, 1] - start_m[k, j, 1]
-        rows[0] = i
-        ob = _observation_kernel(
-            disp_m[k], dist2_m2[k], co_table[k], target[k], pos, drift, t[k] / max_cycles,
-            k_neighbours, scale_m, region_m, interferer_range_m, obs_clip, rows, size, extra, alpha, beta,
-            gamma, logistic, model_p_min, p[k],
-        )  # fmt: skip
-        for f in range(size):
-            obs_out[k, f] = ob[0, f]
-        if version >= 1:
-            step.own_v1_entries(
-                obs_out[k], own_v1_offset, obs_clip, scale_m, step.reach_m(t[k], max_cycles, settle_steps, max_step_m),
-                scalars[k, U_NOW], scalars[k, U_PREV], scalars[k, U_START], scalars[k, U_BEST], best_m[k, 0],
-                best_m[k, 1], plan_m[k, 0], plan_m[k, 1], x, y,
-            )  # fmt: skip
 
 
 class MoverBatch:
@@ -222,32 +111,33 @@ class MoverBatch:
         self.scalars = np.zeros((self.k, N_SCALARS))
         #: copies that hold an episode (loaded since construction)
         self.loaded = np.zeros(self.k, dtype=bool)
-        self._const: tuple[Any, ...] | None = None  # the kernel's constants, from the first loaded copy
+        #: the kernel's constants (links, step options, observation), from the first loaded copy
+        self._const: tuple[LinkConstants, StepConstants, ObservationConstants] | None = None
         #: observation version 3: the field and the measurements of every copy (:mod:`.mover_batch_v3`)
         self.v3 = V3Stacks(self.envs) if first.layout.version == 3 else None
 
-    def _constants(self, env: MobilityEnv) -> tuple[Any, ...]:
+    def _constants(self, env: MobilityEnv) -> tuple[LinkConstants, StepConstants, ObservationConstants]:
         """The kernel arguments every copy shares (links, options, layout, model), from a reset env."""
         (period, _los, _gain, wb1, range2, _idx, _val, _noise, model, per_sinr, per, thr, sens, _t) = (
             env.links._kernel_args
         )
-        layout = env.layout
-        fm = env.model
-        return (
-            period, wb1, float(range2), int(model), per_sinr, per, float(thr), float(sens),
+        links = LinkConstants(period, wb1, float(range2), int(model), per_sinr, per, float(thr), float(sens))
+        steps = StepConstants(
             env.max_step_m, int(env.max_cycles), int(env.settle_steps),
-            np.inf if env.max_drift_m is None else float(env.max_drift_m),
-            bool(env.roi), np.asarray(env.box_m, dtype=np.float64),
-            env.action_mode == "plan_residual", bool(env.normalise_reward),
-            env.reward_form == "improvement", float(env.p_min), int(layout.version),
+            np.inf if env.max_drift_m is None else float(env.max_drift_m), bool(env.roi),
+            np.asarray(env.box_m, dtype=np.float64), env.action_mode == "plan_residual", bool(env.normalise_reward),
+            env.reward_form == "improvement", float(env.p_min), int(env.layout.version),
+        )  # fmt: skip
+        layout, fm = env.layout, env.model
+        observe = ObservationConstants(
             layout.n_neighbours, layout.scale_m, layout.region_m, layout.interferer_range_m, layout.obs_clip,
             layout.size, layout.model_extra, layout.own_v1_offset,
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.alpha, dtype=np.float64),
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.beta, dtype=np.float64),
             np.zeros(1) if fm is None else np.ascontiguousarray(fm.gamma, dtype=np.float64),
-            fm is not None and fm.kind == "logistic",
-            1e-3 if fm is None else float(fm.p_min),
+            fm is not None and fm.kind == "logistic", 1e-3 if fm is None else float(fm.p_min),
         )  # fmt: skip
+        return links, steps, observe
 
     def load(self, k: int) -> None:
         """Copy env copy ``k``'s state, just after its ``reset``, into the stacks."""
@@ -266,7 +156,7 @@ class MoverBatch:
         self.disp_m[k] = env.geometry.disp_m
         self.dist2_m2[k] = env.geometry.dist2_m2
         table = env.co_table
-        _widened(self, "co_table", table.shape[1], -1)
+        widened(self, "co_table", table.shape[1], -1)
         self.co_table[k] = -1
         self.co_table[k, :, : table.shape[1]] = table
         self.target[k] = env.target
@@ -289,10 +179,7 @@ class MoverBatch:
         self.loaded[k] = True
 
     #: the per-copy stacks :meth:`load` fills (every entry of a copy's row), and those whose last axis grows
-    ROW_ARRAYS = (
-        "mover", "t", "positions_m", "start_m", "plan_m", "best_m", "disp_m", "dist2_m2", "co_table", "target", "p",
-        "los_row", "gain_row_db", "level_db", "scalars",
-    )  # fmt: skip
+    ROW_ARRAYS = CopyStacks._fields
     WIDE_ARRAYS: dict[str, float] = {"co_table": -1}  # noqa: RUF012 - a constant table
 
     def row_of(self, k: int) -> dict[str, Any]:
@@ -313,7 +200,7 @@ class MoverBatch:
             name = key[3:] if key.startswith("v3.") else key
             fill = owner.WIDE_ARRAYS.get(name)
             if fill is not None:
-                stack = _widened(owner, name, value.shape[-1], fill)
+                stack = widened(owner, name, value.shape[-1], fill)
                 stack[k] = fill
                 stack[k, ..., : value.shape[-1]] = value
             else:
@@ -342,28 +229,19 @@ class MoverBatch:
             k = int(np.flatnonzero(mask & ~self.loaded)[0])
             raise RuntimeError(f"env copy {k} has no episode: reset and load it first")
         assert self._const is not None  # set by the first load
-        done_before = mask & (self.t >= self._const[9])
+        done_before = mask & (self.t >= self._const[1].max_cycles)
         if done_before.any():
             raise RuntimeError(f"step() called on a finished episode of copy {int(np.flatnonzero(done_before)[0])}")
         obs = np.zeros((self.k, self.layout.size), dtype=np.float32)
         rewards = np.zeros(self.k)
         dones = np.zeros(self.k, dtype=bool)
         info = np.zeros((self.k, 8))
-        (period, wb1, range2, model, per_sinr, per, thr, sens, *opts) = self._const
+        stacks = CopyStacks(*(getattr(self, name) for name in CopyStacks._fields))
+        out = StepOutputs(obs, rewards, dones, info)
         if self.v3 is not None:
-            _mover_steps_v3(  # type: ignore[call-arg]
-                mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
-                self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,
-                self.level_db, self.scalars, period, wb1, range2, model, per_sinr, per, thr, sens, *opts,
-                *self.v3.kernel_args(), obs, rewards, dones, info,
-            )  # fmt: skip
-            return obs, rewards, dones, info
-        _mover_steps(  # type: ignore[call-arg]  # numba's Dispatcher hides the signature
-            mask, act, self.mover, self.t, self.positions_m, self.start_m, self.plan_m, self.best_m,
-            self.disp_m, self.dist2_m2, self.co_table, self.target, self.p, self.los_row, self.gain_row_db,
-            self.level_db, self.scalars, period, wb1, range2, model, per_sinr, per, thr, sens, *opts,
-            obs, rewards, dones, info,
-        )  # fmt: skip
+            mover_steps_v3(mask, act, stacks, *self._const, self.v3.kernel_args(), out)
+        else:
+            mover_steps(mask, act, stacks, *self._const, out)
         return obs, rewards, dones, info
 
     def sync(self, k: int) -> None:

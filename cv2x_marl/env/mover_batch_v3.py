@@ -6,24 +6,33 @@ column), takes one period of measurements (the draws of every pair from each cop
 stream, drawn inside the compiled step by :func:`cv2x_marl.env.pcg64.draw_column_into`: numpy's ``PCG64``
 draws bit for bit, the copy's generator state kept in :attr:`V3Stacks.rng_state` and written back into its
 ``numpy.random.Generator`` by :meth:`V3Stacks.sync`; the mover's column of reports updated) and builds the
-measured and own v3 entries. :class:`V3Stacks` holds that per-copy state; :func:`_mover_steps_v3` is
+measured and own v3 entries. :class:`V3Stacks` holds that per-copy state; :func:`mover_steps_v3` is
 ``MobilityEnv.step_mover`` for K copies: the same compiled functions in the same order (the field's
 :func:`~cv2x_marl.sim.kernels.field.pair_field_db`, :func:`~cv2x_marl.sim.kernels.mover_column`, the
-measurement update :func:`~cv2x_marl.env.measurement._update_columns`, the observation kernels), so
+measurement update :func:`~cv2x_marl.env.measurement.update_columns`, the observation kernels), so
 bit-identical to it (tested: ``tests/env/test_v3_fast.py``).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step
-from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, _update_columns
-from cv2x_marl.env.observation import FEATURES, OWN, _measured_kernel, _observation_kernel, _own_v3_kernel
+from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, update_columns
+from cv2x_marl.env.mover_kernels import (
+    CopyStacks,
+    LinkConstants,
+    ObservationConstants,
+    StepConstants,
+    StepOutputs,
+    move_mover,
+    observe_mover,
+)
+from cv2x_marl.env.observation import FEATURES, OWN, measured_kernel, own_v3_kernel
 from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_column_into, jump_table, set_state, state_of
 from cv2x_marl.sim.kernels import mover_column
 from cv2x_marl.sim.kernels.field import field_pairs_row_into, gather_mover_pairs
@@ -34,7 +43,7 @@ if TYPE_CHECKING:
 FloatArray = NDArray[np.float64]
 
 
-def _widened(owner: Any, name: str, width: int, fill: float) -> NDArray[Any]:
+def widened(owner: Any, name: str, width: int, fill: float) -> NDArray[Any]:
     """Stack ``name`` of ``owner`` [K, ..., G], its last axis grown to at least ``width`` (new entries ``fill``)."""
     stack = getattr(owner, name)
     if width > stack.shape[-1]:
@@ -114,8 +123,8 @@ class V3Stacks:
         self.noise_mw = float(links.noise_mw)
         self.los[k] = args[1]
         idx, val = args[5], args[6]
-        _widened(self, "idx", idx.shape[1], -1)
-        _widened(self, "val", val.shape[1], 0.0)
+        widened(self, "idx", idx.shape[1], -1)
+        widened(self, "val", val.shape[1], 0.0)
         self.idx[k] = -1
         self.val[k] = 0.0
         self.idx[k, :, : idx.shape[1]] = idx
@@ -142,12 +151,11 @@ class V3Stacks:
             )  # fmt: skip
             self.decorrelation_m = float(field.decorrelation_m)
 
-    def kernel_args(self) -> tuple[Any, ...]:
-        """The stacks in :func:`_mover_steps_v3`'s order (after the arguments of ``_mover_steps``)."""
-        return (
-            self.has_field, self.f_start, self.f_shadow0, self.f_sigma, self.decorrelation_m, self.f_k_lo,
-            self.f_k_hi, self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db,
-            self.shadow_col_db,
+    def kernel_args(self) -> V3Arrays:
+        """The stacks and constants :func:`mover_steps_v3` reads, by name."""
+        return V3Arrays(
+            self.has_field, self.f_start, self.f_shadow0, self.f_sigma, self.decorrelation_m, self.f_k_lo, self.f_k_hi,
+            self.f_phase, self.f_g0, self.eirp_dbm, self.noise_mw, self.los, self.gain_col_db, self.shadow_col_db,
             self.idx, self.val, self.power_mw, self.count, self.head, self.rsrp_dbm, self.age, self.rx_dbm,
             self.uniform, self.fade, self.normal, self.rng_state, self.jumps, ZIGGURAT_U64, ZIGGURAT_F64,
             self.error_db, self.slot_frac, self.sub_frac, self.horizon,
@@ -165,108 +173,75 @@ class V3Stacks:
         env.rx_dbm = self.rx_dbm[k].copy()
 
 
+class V3Arrays(NamedTuple):
+    """The v3 step's per-copy stacks and constants (:meth:`V3Stacks.kernel_args`), K copies of N vehicles.
+
+    Attributes:
+        has_field: the shadowing field follows the vehicles; f_start [K, N, 2], f_shadow0, f_sigma [K, N],
+            decorrelation_m, f_k_lo, f_k_hi [K, N, F, 2], f_phase [K, N, F], f_g0 [K, N]: the field of each copy's
+            mover pairs (:func:`~cv2x_marl.sim.kernels.field.gather_mover_pairs`).
+        eirp_dbm, noise_mw: the transmit EIRP (dBm) and noise power (mW).
+        los [K, N, N], gain_col_db, shadow_col_db [K, N], idx, val [K, N, G]: the links of the mover's column.
+        power_mw, sample_count [K, W, N, N], head [K], rsrp_dbm [K, N, N] (dBm), age [K, N, N], rx_dbm [K, N, N] (dBm):
+            the measurements (:class:`~cv2x_marl.env.measurement.Measurements`).
+        uniform, fade, normal: [K, N, N] scratch for a period's draws.
+        rng_state [K, 4], jumps, zig_u64, zig_f64: the copies' PCG64 measurement streams and the ziggurat tables
+            (:mod:`cv2x_marl.env.pcg64`).
+        error_db: the RSRP report error (dB); slot_frac, sub_frac: [K, N] resource fractions; horizon: [K] steps.
+    """
+
+    has_field: bool
+    f_start: FloatArray
+    f_shadow0: FloatArray
+    f_sigma: FloatArray
+    decorrelation_m: float
+    f_k_lo: FloatArray
+    f_k_hi: FloatArray
+    f_phase: FloatArray
+    f_g0: FloatArray
+    eirp_dbm: float
+    noise_mw: float
+    los: NDArray[np.bool_]
+    gain_col_db: FloatArray
+    shadow_col_db: FloatArray
+    idx: NDArray[np.int64]
+    val: FloatArray
+    power_mw: FloatArray
+    sample_count: FloatArray
+    head: NDArray[np.int64]
+    rsrp_dbm: FloatArray
+    age: NDArray[np.int64]
+    rx_dbm: FloatArray
+    uniform: FloatArray
+    fade: FloatArray
+    normal: FloatArray
+    rng_state: NDArray[np.uint64]
+    jumps: NDArray[np.uint64]
+    zig_u64: NDArray[np.uint64]
+    zig_f64: FloatArray
+    error_db: float
+    slot_frac: FloatArray
+    sub_frac: FloatArray
+    horizon: NDArray[np.int64]
+
+
 @njit(cache=True)
-def _mover_steps_v3(
+def mover_steps_v3(
     active: NDArray[np.bool_],
     actions: FloatArray,
-    mover: NDArray[np.int64],
-    t: NDArray[np.int64],
-    positions_m: FloatArray,
-    start_m: FloatArray,
-    plan_m: FloatArray,
-    best_m: FloatArray,
-    disp_m: FloatArray,
-    dist2_m2: FloatArray,
-    co_table: NDArray[np.int64],
-    target: NDArray[np.bool_],
-    p: FloatArray,
-    los_row: NDArray[np.bool_],
-    gain_row_db: FloatArray,
-    level_db: FloatArray,
-    scalars: FloatArray,
-    period_m: FloatArray,
-    wb1: FloatArray,
-    range2_m2: float,
-    link_model: int,
-    per_sinr_db: FloatArray,
-    per: FloatArray,
-    threshold_db: float,
-    sensitivity_dbm: float,
-    max_step_m: float,
-    max_cycles: int,
-    settle_steps: int,
-    max_drift_m: float,
-    roi: bool,
-    box_m: FloatArray,
-    residual: bool,
-    normalise: bool,
-    improvement: bool,
-    p_min: float,
-    version: int,
-    k_neighbours: int,
-    scale_m: float,
-    region_m: float,
-    interferer_range_m: float,
-    obs_clip: float,
-    size: int,
-    extra: int,
-    own_v1_offset: int,
-    alpha: FloatArray,
-    beta: FloatArray,
-    gamma: FloatArray,
-    logistic: bool,
-    model_p_min: float,
-    has_field: bool,
-    f_start: FloatArray,
-    f_shadow0: FloatArray,
-    f_sigma: FloatArray,
-    decorrelation_m: float,
-    f_k_lo: FloatArray,
-    f_k_hi: FloatArray,
-    f_phase: FloatArray,
-    f_g0: FloatArray,
-    eirp_dbm: float,
-    noise_mw: float,
-    los: NDArray[np.bool_],
-    gain_col_db: FloatArray,
-    shadow_col_db: FloatArray,
-    idx: NDArray[np.int64],
-    val: FloatArray,
-    power_mw: FloatArray,
-    count: FloatArray,
-    head: NDArray[np.int64],
-    rsrp_dbm: FloatArray,
-    age: NDArray[np.int64],
-    rx_dbm: FloatArray,
-    uniform: FloatArray,
-    fade: FloatArray,
-    normal: FloatArray,
-    rng_state: NDArray[np.uint64],
-    jumps: NDArray[np.uint64],
-    zig_u64: NDArray[np.uint64],
-    zig_f64: FloatArray,
-    error_db: float,
-    slot_frac: FloatArray,
-    sub_frac: FloatArray,
-    horizon: NDArray[np.int64],
-    obs_out: NDArray[np.float32],
-    reward_out: FloatArray,
-    done_out: NDArray[np.bool_],
-    info_out: FloatArray,
+    s: CopyStacks,
+    links: LinkConstants,
+    c: StepConstants,
+    o: ObservationConstants,
+    v: V3Arrays,
+    out: StepOutputs,
 ) -> None:
-    """Step every ``active`` copy k of observation version 3: ``MobilityEnv.step_mover(actions[k])``, in place.
-
-    The arguments up to ``model_p_min`` as :func:`cv2x_marl.env.mover_batch._mover_steps`; then
-    :meth:`V3Stacks.kernel_args` (the field arrays of each copy's mover pairs, [K, N, ...], as
-    :func:`~cv2x_marl.sim.kernels.field.gather_mover_pairs` gives them,
-    the link constants of the mover's column, the measurements [K, W, N, N] / [K, N, N], scratch for this
-    period's draws [K, N, N] (column ``mover[k]`` written), the PCG64 states [K, 4] of the copies' measurement
-    streams with :func:`~cv2x_marl.env.pcg64.jump_table` and the ziggurat tables, the neighbours' resource
-    fractions [K, N], the horizon [K]); then the outputs.
-    """
-    n_copies = actions.shape[0]
-    n = positions_m.shape[1]
-    window = power_mw.shape[1]
+    """Step every ``active`` copy k of observation version 3: ``MobilityEnv.step_mover(actions[k])``, in place:
+    :func:`~cv2x_marl.env.mover_kernels.mover_steps`' move, links and record, with the field's row and the
+    mover's column of links, one period of measurements (every pair's draws from the copy's stream, the mover's
+    column of reports) and the measured and own v3 entries."""
+    n = s.positions_m.shape[1]
+    window = v.power_mw.shape[1]
     rows = np.zeros(1, dtype=np.int64)
     drift = np.empty((n, 2))
     shadow = np.empty(n)
@@ -276,86 +251,71 @@ def _mover_steps_v3(
     u_now = np.empty(1)
     u_prev = np.empty(1)
     drift_one = np.empty((1, 2))
-    v0_size = k_neighbours * FEATURES + OWN
-    for k in range(n_copies):
+    v0_size = o.k_neighbours * FEATURES + OWN
+    for k in range(actions.shape[0]):
         if not active[k]:
             continue
-        i = mover[k]
-        pos = positions_m[k]
-        x_old = pos[i, 0]
-        y_old = pos[i, 1]
-        clipped = step.is_clipped(actions[k, 0], actions[k, 1])
-        x, y = step.move_vehicle(
-            actions[k, 0], actions[k, 1], x_old, y_old, start_m[k, i, 0], start_m[k, i, 1], plan_m[k, 0],
-            plan_m[k, 1], max_step_m, max_step_m, residual, t[k] >= max_cycles - settle_steps, max_drift_m, roi,
-            box_m[0], box_m[1],
-        )  # fmt: skip
-        pos[i, 0] = x
-        pos[i, 1] = y
-        t[k] += 1
+        i, x, y, x_old, y_old, clipped = move_mover(k, actions, s, c)
+        pos = s.positions_m[k]
         # the own links' gains where the mover stands: the field's row (MoverLinksStep), or the snapshot's
-        if has_field:
+        if v.has_field:
             field_pairs_row_into(
-                x, y, pos, i, f_start[k], f_shadow0[k], f_sigma[k], decorrelation_m, f_k_lo[k], f_k_hi[k],
-                f_phase[k], f_g0[k], shadow,
+                x, y, pos, i, v.f_start[k], v.f_shadow0[k], v.f_sigma[k], v.decorrelation_m, v.f_k_lo[k],
+                v.f_k_hi[k], v.f_phase[k], v.f_g0[k], shadow,
             )  # fmt: skip
             for j in range(n):
-                gain[j] = eirp_dbm - shadow[j]
+                gain[j] = v.eirp_dbm - shadow[j]
             row_gain = gain
             col_gain = gain
             col_shadow = shadow
         else:
-            row_gain = gain_row_db[k]
-            col_gain = gain_col_db[k]
-            col_shadow = shadow_col_db[k]
+            row_gain = s.gain_row_db[k]
+            col_gain = v.gain_col_db[k]
+            col_shadow = v.shadow_col_db[k]
         step.mover_row_into(
-            x, y, pos, i, target[k, i], p[k, i], los_row[k], row_gain, level_db[k], period_m, wb1, range2_m2,
-            link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
+            x, y, pos, i, s.target[k, i], s.p[k, i], s.los_row[k], row_gain, s.level_db[k], links.period_m,
+            links.wb1, links.range2_m2, links.link_model, links.per_sinr_db, links.per, links.threshold_db,
+            links.sensitivity_dbm,
         )  # fmt: skip
         p_col, rx_col = mover_column(
-            x, y, pos, i, period_m, los[k], col_gain, col_shadow, eirp_dbm, wb1, range2_m2, idx[k], val[k],
-            noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm,
-            np.ascontiguousarray(target[k, :, i]),
+            x, y, pos, i, links.period_m, v.los[k], col_gain, col_shadow, v.eirp_dbm, links.wb1, links.range2_m2,
+            v.idx[k], v.val[k], v.noise_mw, links.link_model, links.per_sinr_db, links.per, links.threshold_db,
+            links.sensitivity_dbm, np.ascontiguousarray(s.target[k, :, i]),
         )  # fmt: skip
         for j in range(n):
-            p[k, j, i] = p_col[j]
-            rx_dbm[k, j, i] = rx_col[j]
+            s.p[k, j, i] = p_col[j]
+            v.rx_dbm[k, j, i] = rx_col[j]
         rows[0] = i
         # this period's draws of every pair from the copy's measurement stream (Measurements.update's order)
-        draw_column_into(rng_state[k], jumps, zig_u64, zig_f64, i, uniform[k], fade[k], normal[k])
-        _update_columns(
-            power_mw[k], count[k], head[k], rsrp_dbm[k], age[k], rx_dbm[k], p[k], uniform[k], fade[k], normal[k],
-            error_db, rows,
+        draw_column_into(v.rng_state[k], v.jumps, v.zig_u64, v.zig_f64, i, v.uniform[k], v.fade[k], v.normal[k])
+        update_columns(
+            v.power_mw[k], v.sample_count[k], v.head[k], v.rsrp_dbm[k], v.age[k], v.rx_dbm[k], s.p[k], v.uniform[k],
+            v.fade[k], v.normal[k], v.error_db, rows,
         )  # fmt: skip
-        head[k] = (head[k] + 1) % window
-        reward_out[k] = step.record_mover_step(
-            i, x, y, x_old, y_old, clipped, pos, p[k, i], target[k, i], scalars[k], best_m[k], disp_m[k],
-            dist2_m2[k], period_m, p_min, normalise, improvement, True, info_out[k],
+        v.head[k] = (v.head[k] + 1) % window
+        out.reward[k] = step.record_mover_step(
+            i, x, y, x_old, y_old, clipped, pos, s.p[k, i], s.target[k, i], s.scalars[k], s.best_m[k], s.disp_m[k],
+            s.dist2_m2[k], links.period_m, c.p_min, c.normalise, c.improvement, True, out.info[k],
         )  # fmt: skip
-        done_out[k] = t[k] >= max_cycles
-        for j in range(n):
-            drift[j, 0] = pos[j, 0] - start_m[k, j, 0]
-            drift[j, 1] = pos[j, 1] - start_m[k, j, 1]
-        ob = _observation_kernel(
-            disp_m[k], dist2_m2[k], co_table[k], target[k], pos, drift, t[k] / max_cycles,
-            k_neighbours, scale_m, region_m, interferer_range_m, obs_clip, rows, size, extra, alpha, beta,
-            gamma, logistic, model_p_min, p[k],
-        )  # fmt: skip
+        out.done[k] = s.t[k] >= c.max_cycles
+        ob = observe_mover(k, s, c, o, rows, drift)
         for j in range(n):  # scaled_rsrp and age / window of the mover's column
-            v = (rsrp_dbm[k, j, i] - RSRP_REF_DBM) / RSRP_SCALE_DB
-            rsrp_scaled[j, i] = v if np.isfinite(v) else 0.0
-            age_scaled[j, i] = age[k, j, i] / window
-        _measured_kernel(
-            ob, disp_m[k], dist2_m2[k], co_table[k], rsrp_scaled, age_scaled, slot_frac[k], sub_frac[k], rows,
-            k_neighbours, v0_size, scale_m, obs_clip,
+            r = (v.rsrp_dbm[k, j, i] - RSRP_REF_DBM) / RSRP_SCALE_DB
+            rsrp_scaled[j, i] = r if np.isfinite(r) else 0.0
+            age_scaled[j, i] = v.age[k, j, i] / window
+        measured_kernel(
+            ob, s.disp_m[k], s.dist2_m2[k], s.co_table[k], rsrp_scaled, age_scaled, v.slot_frac[k], v.sub_frac[k],
+            rows, o.k_neighbours, v0_size, o.scale_m, o.obs_clip,
         )  # fmt: skip
-        hz = horizon[k]
-        left = max(hz - t[k], 0)
-        moving = max(min(hz, max_cycles - settle_steps) - t[k], 0)
-        u_now[0] = scalars[k, step.U_NOW]
-        u_prev[0] = scalars[k, step.U_PREV]
+        hz = v.horizon[k]
+        left = max(hz - s.t[k], 0)
+        moving = max(min(hz, c.max_cycles - c.settle_steps) - s.t[k], 0)
+        u_now[0] = s.scalars[k, step.U_NOW]
+        u_prev[0] = s.scalars[k, step.U_PREV]
         drift_one[0, 0] = drift[i, 0]
         drift_one[0, 1] = drift[i, 1]
-        _own_v3_kernel(ob, own_v1_offset, obs_clip, scale_m, u_now, u_prev, drift_one, left / hz, moving * max_step_m)
-        for f in range(size):
-            obs_out[k, f] = ob[0, f]
+        own_v3_kernel(
+            ob, o.own_v1_offset, o.obs_clip, o.scale_m, u_now, u_prev, drift_one, left / hz, moving * c.max_step_m
+        )
+        for f in range(o.size):
+            out.obs[k, f] = ob[0, f]

@@ -228,7 +228,7 @@ def co_channel_table(resource: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 @njit(cache=True)
-def _observation_kernel(
+def observation_kernel(
     disp_m: FloatArray,
     dist2_m2: FloatArray,
     co_table: NDArray[np.int64],
@@ -365,7 +365,7 @@ def build_observations(
     if extra > 1 and (p_true is None or p_true.shape != (n, n)):
         raise ValueError(f"a privileged layout needs p_true of shape ({n}, {n})")
     alpha, beta, gamma = _NO_MODEL if model is None else (model.alpha, model.beta, model.gamma)
-    return _observation_kernel(
+    return observation_kernel(
         geometry.disp_m,
         geometry.dist2_m2,
         co_table,
@@ -430,7 +430,7 @@ def decode_observations(obs: np.ndarray, layout: ObservationLayout) -> GbmuInput
 
 
 @njit(cache=True)
-def _measured_kernel(
+def measured_kernel(
     out: NDArray[np.float32],
     disp_m: FloatArray,
     dist2_m2: FloatArray,
@@ -513,7 +513,7 @@ def fill_measured(
     """
     if layout.version != 3:
         raise ValueError("measured entries are part of observation version 3")
-    _measured_kernel(
+    measured_kernel(
         obs, geometry.disp_m, geometry.dist2_m2, co_table,
         np.ascontiguousarray(rsrp_scaled, dtype=np.float64), np.ascontiguousarray(age_scaled, dtype=np.float64),
         np.ascontiguousarray(slot_frac, dtype=np.float64), np.ascontiguousarray(sub_frac, dtype=np.float64),
@@ -540,7 +540,7 @@ def fill_own_v3(
         time_left: steps left / horizon.
         reach_m: moving steps left x ``max_step_m`` (m).
     """
-    _own_v3_kernel(
+    own_v3_kernel(
         obs, layout.own_v1_offset, layout.obs_clip, layout.scale_m, np.ascontiguousarray(u_now, dtype=np.float64),
         np.ascontiguousarray(u_prev, dtype=np.float64), np.ascontiguousarray(drift_m, dtype=np.float64),
         float(time_left), float(reach_m),
@@ -548,7 +548,7 @@ def fill_own_v3(
 
 
 @njit(cache=True)
-def _own_v3_kernel(
+def own_v3_kernel(
     obs: NDArray[np.float32],
     offset: int,
     obs_clip: float,

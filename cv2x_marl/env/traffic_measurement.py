@@ -213,7 +213,7 @@ def _fill_kernel(
     obs_clip: float,
 ) -> None:
     """:func:`fill_observations`' entries, computed in float64, clipped, stored as float32; the neighbours in the
-    v0 block's order (a stable sort of the distances, the agent itself last: ``_observation_kernel``'s)."""
+    v0 block's order (a stable sort of the distances, the agent itself last: ``observation_kernel``'s)."""
     n = dist2_m2.shape[0]
     dist_i = np.empty(n)
     vals = np.empty(FEATURES_V4)
