@@ -27,7 +27,8 @@ from cv2x_marl.env import mover_step, starts
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env.dynamics import TargetSpeed, dynamics_model
 from cv2x_marl.env.infos import DRIVE_INFO_KEYS, EPISODE_INFO_KEYS, INFO_KEYS, global_state, infos_of
-from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table, fill_drive
+from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
+from cv2x_marl.env.observation_fills import fill_drive
 from cv2x_marl.env.observation_models import OwnState, observation_model
 from cv2x_marl.env.options import EnvOptions
 from cv2x_marl.env.rewards import RewardModel

@@ -32,7 +32,8 @@ from cv2x_marl.env.mover_kernels import (
     move_mover,
     observe_mover,
 )
-from cv2x_marl.env.observation import FEATURES, OWN, measured_kernel, own_v3_kernel
+from cv2x_marl.env.observation import FEATURES, OWN
+from cv2x_marl.env.observation_fills import measured_kernel, own_v3_kernel
 from cv2x_marl.env.pcg64 import ZIGGURAT_F64, ZIGGURAT_U64, draw_column_into, jump_table, set_state, state_of
 from cv2x_marl.sim.kernels import mover_column
 from cv2x_marl.sim.kernels.field import field_pairs_row_into, gather_mover_pairs

@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env import traffic_measurement as tmeas
 from cv2x_marl.env.measurement import Measurements, scaled_rsrp
-from cv2x_marl.env.observation import VERSION_BLOCKS, decode_observations, fill_measured, fill_own_v3
+from cv2x_marl.env.observation import VERSION_BLOCKS, decode_observations
+from cv2x_marl.env.observation_fills import fill_measured, fill_own_v3
 from cv2x_marl.env.planning import (
     PLAN_GRID_M,
     SearchGridError,

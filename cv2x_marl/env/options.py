@@ -3,9 +3,10 @@
 :class:`EnvOptions` declares each keyword argument of :class:`~cv2x_marl.env.MobilityEnv` (and so of
 every ``cv2x/Mobility-*`` and ``cv2x/SingleMover-*`` id) with the field metadata of
 :mod:`cv2x_marl.schema` (:func:`~cv2x_marl.schema.key_field`: meaning, unit, range, choices, allowed
-values in words), its default and the defaults each env version changes (:data:`VERSION_DEFAULTS`). Construction checks
-every value against it; cross-option rules follow, then :meth:`EnvOptions.check_scenario` checks the
-options that depend on the scenario (its number of vehicles, road box, path loss, mobility).
+values in words), its default and the defaults each env id changes
+(:data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS`, named by the spec table), and its role (:data:`ROLES`).
+Construction checks every value against it; cross-option rules follow, then :meth:`EnvOptions.check_scenario`
+checks the options that depend on the scenario (its number of vehicles, road box, path loss, mobility).
 
 The values are checked as a Python API takes them, not as a YAML file is read: numpy integers are
 integers, bools are not, a float is never an integer (``2.0`` is refused where an integer is due).
@@ -30,6 +31,7 @@ from numpy.typing import NDArray
 from cv2x_marl import schema
 from cv2x_marl.checks import is_int, is_real
 from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
+from cv2x_marl.env.defaults import VERSION_DEFAULTS  # the defaults of each id
 from cv2x_marl.env.observation import VERSION_BLOCKS, VERSIONS
 
 #: ``snapshot``: positions and SPS resources of a stage-1 snapshot; ``traffic``: vehicles drive
@@ -60,40 +62,6 @@ RENDER_MODES = ("rgb_array", "human")
 #: the run time grow with it (an episode of traffic mode simulates ``max_cycles`` SPS periods)
 MAX_CYCLES = 10_000
 
-#: what ``cv2x/Mobility-v1`` and ``cv2x/SingleMover-v1`` change from the v0 defaults (any can be overridden)
-V1_DEFAULTS: dict[str, Any] = {"observation": 1, "reward_form": "improvement", "normalise_reward": True}
-#: what ``cv2x/Mobility-v2`` and ``cv2x/SingleMover-v2`` change from the v0 defaults: observation
-#: version 2 (the plan from the mover's sensing estimate), improvement rewards per target receiver
-V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
-#: what ``cv2x/Mobility-v3`` and ``cv2x/SingleMover-v3`` change from the v0 defaults: v2's rewards, the
-#: plan-free observation version 3 (measurements) and shadowing that follows the vehicles
-V3_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 3, "shadow_field": True}
-#: ``cv2x/Cooperative-v0``: v3 with every vehicle moving for the team objective
-COOPERATIVE_DEFAULTS: dict[str, Any] = {**V3_DEFAULTS, "reward": "team"}
-#: ``cv2x/Traffic-v0``: vehicles drive the lane model, the mover commands its speed and lane, the reward is the
-#: period's utility per target receiver, the observation is v0's block plus the driving entries, and the infos
-#: carry the episode's means
-TRAFFIC_DEFAULTS: dict[str, Any] = {
-    "mode": "traffic",
-    "traffic_action": "speed",
-    "normalise_reward": True,
-    "drive_observation": True,
-    "episode_metrics": True,
-}
-#: ``cv2x/Traffic-v1``: Traffic-v0 with observation version 4, what the mover measured on the road (RSRP over its
-#: sensing window, the SCIs it decoded, its own SPS state; :mod:`cv2x_marl.env.traffic_measurement`)
-TRAFFIC_V1_DEFAULTS: dict[str, Any] = {**TRAFFIC_DEFAULTS, "observation": 4}
-#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``;
-#: ``traffic-v0``, ``traffic-v1``: ``cv2x/Traffic-v0``, ``cv2x/Traffic-v1``)
-VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
-    "v0": {},
-    "v1": V1_DEFAULTS,
-    "v2": V2_DEFAULTS,
-    "v3": V3_DEFAULTS,
-    "cooperative-v0": COOPERATIVE_DEFAULTS,
-    "traffic-v0": TRAFFIC_DEFAULTS,
-    "traffic-v1": TRAFFIC_V1_DEFAULTS,
-}
 #: the bound of a commanded speed increase (m/s^2): SUMO's default ``accel`` of a passenger car (2.6 m/s^2,
 #: sumo.dlr.de "Vehicle Type Parameter Defaults"), within the 2-3 m/s^2 of comfortable acceleration
 ACCEL_MPS2 = 2.6
@@ -607,7 +575,7 @@ POLICY_ROLES = ("observation", "action")
 def options_markdown() -> str:
     """The table of :class:`EnvOptions` (the ``Arguments`` table of ``docs/env.md``)."""
     hints = typing.get_type_hints(EnvOptions)
-    lines = ["| argument | type | unit | default | allowed | meaning |", "|---|---|---|---|---|---|"]
+    lines = ["| argument | role | type | unit | default | allowed | meaning |", "|---|---|---|---|---|---|---|"]
     for f in dataclasses.fields(EnvOptions):
         tp, optional = schema.base_type(hints[f.name])
         if typing.get_origin(tp) is not None:  # Sequence[X]
@@ -621,7 +589,8 @@ def options_markdown() -> str:
             default = f"{default} ({', '.join(per_version)})"
         cells = [c.replace("|", "\\|") for c in (allowed_text(f, tp, optional), f.metadata["doc"])]
         unit = f.metadata["unit"] or "-"
-        lines.append(f"| `{f.name}` | {tname} | {unit} | `{default}` | {cells[0]} | {cells[1]} |")
+        role = f.metadata["role"]
+        lines.append(f"| `{f.name}` | {role} | {tname} | {unit} | `{default}` | {cells[0]} | {cells[1]} |")
     return "\n".join(lines) + "\n"
 
 

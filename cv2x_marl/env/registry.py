@@ -1,7 +1,7 @@
 """The env ids in one table (:data:`SPECS`), and everything derived from it: the parallel env of an id
 (:func:`make_parallel_env`, the one way every route builds it), the PettingZoo factories (:data:`FACTORIES`) and
 the Gymnasium / PettingZoo registration. The defaults of each id are
-:data:`cv2x_marl.env.options.VERSION_DEFAULTS`:
+:data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS`:
 
     cv2x/Mobility-vN      PettingZoo, every mover an agent
     cv2x/SingleMover-vN   Gymnasium, vehicle 0 the only mover (:class:`~cv2x_marl.env.single.SingleMoverEnv`);
@@ -15,7 +15,7 @@ the Gymnasium / PettingZoo registration. The defaults of each id are
 Every id is one :class:`~cv2x_marl.env.mobility_env.MobilityEnv` with the id's options and metadata name; the
 Gymnasium ids are :class:`~cv2x_marl.env.single.SingleMoverEnv` with ``env_id`` (registered with
 ``kwargs={"env_id": ...}``), the PettingZoo ids :func:`make_parallel_env` / :func:`make_aec_env` with ``env_id``.
-Adding an id is a row of :data:`SPECS` (and its defaults in ``VERSION_DEFAULTS``).
+Adding an id is a row of :data:`SPECS` and its defaults in :data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS`.
 
 ``import cv2x_marl`` calls :func:`register_envs`: the ids are registered at once in whichever of
 Gymnasium / PettingZoo is already imported, else when it is imported (an import hook), so importing
@@ -26,7 +26,8 @@ no such syntax: frameworks take the factories (``parallel_env``, ``parallel_env_
 ``parallel_env_cooperative``, ``parallel_env_traffic``, ``parallel_env_traffic_v1`` and their AEC ``env*``, also
 attributes of :mod:`cv2x_marl.env`) instead.
 
-This module imports only the standard library at its top, so the CLI reads :data:`ENV_IDS` for its
+This module imports only the standard library (and the defaults table) at its top, so the CLI reads
+:data:`ENV_IDS` for its
 ``--env`` choices without importing the env (about 0.9 s measured: PettingZoo, numba, the simulator);
 the factories import :mod:`cv2x_marl.env.mobility_env` when called.
 """
@@ -45,6 +46,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from cv2x_marl.env.defaults import VERSION_DEFAULTS
+
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
@@ -56,7 +59,7 @@ class EnvSpec:
 
     Attributes:
         env_id: the id (``cv2x/<Family>-v<N>``).
-        defaults: its key in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (the options it fixes).
+        defaults: its key in :data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS` (the options it fixes).
         frameworks: where it is registered: ``gymnasium`` (vehicle 0's view, :class:`~cv2x_marl.env.single.
             SingleMoverEnv`), ``pettingzoo`` (every vehicle an agent, parallel and AEC).
         movers: who moves: ``arguments`` (``movers``; default every vehicle), ``vehicle0`` (always vehicle 0;
@@ -167,7 +170,7 @@ def spec_of(env_id: str) -> EnvSpec:
 
 
 def env_version(env_id: str) -> str:
-    """The key of a registered id's defaults in :data:`~cv2x_marl.env.options.VERSION_DEFAULTS` (``v0`` ..
+    """The key of a registered id's defaults in :data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS` (``v0`` ..
     ``v3``; ``cooperative-v0``; ``traffic-v0`` / ``traffic-v1``); unknown ids are refused with the list."""
     return spec_of(env_id).defaults
 
@@ -177,7 +180,6 @@ def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     Gymnasium id wraps): :class:`~cv2x_marl.env.mobility_env.MobilityEnv` with the id's defaults, its movers
     (:attr:`EnvSpec.movers`) and its metadata name; ``kwargs`` as ``MobilityEnv``, over the defaults."""
     from cv2x_marl.env.mobility_env import MobilityEnv
-    from cv2x_marl.env.options import VERSION_DEFAULTS
 
     spec = spec_of(env_id)
     options = {**VERSION_DEFAULTS[spec.defaults]}

@@ -2,7 +2,7 @@
 
 :meth:`MobilityEnv.step <cv2x_marl.env.mobility_env.MobilityEnv.step>` (every vehicle),
 :meth:`~cv2x_marl.env.mobility_env.MobilityEnv.step_mover` (one mover) and the K batched copies of
-:func:`cv2x_marl.env.mover_batch._mover_steps` call these functions and nothing else for the arithmetic
+:func:`cv2x_marl.env.mover_kernels.mover_steps` call these functions and nothing else for the arithmetic
 of a step, so their results are equal by construction (same functions, same order of floating-point
 operations), not by keeping three copies in step:
 

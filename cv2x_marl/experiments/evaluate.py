@@ -190,8 +190,9 @@ def expand_policies(specs: Sequence[str], flag: str = "--policy") -> list[str]:
 def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
     """The env id and the options that shape observations, actions and dynamics of a model saved by
     ``cv2x-marl train`` (read from ``train_config.json`` beside it; ``(None, {})`` for a bare SB3
-    file): those of role ``observation`` and ``action`` (:data:`~cv2x_marl.env.options.POLICY_ROLES`). The
-    reward options are not taken: every method is judged on the same utility."""
+    file): those of role ``observation`` and ``action`` (:data:`~cv2x_marl.env.options.POLICY_ROLES`), and
+    ``reward_form`` (the ``mean_return`` column is in the model's own form). The other reward options are not
+    taken: every method is judged on the same utility."""
     import json
 
     cfg_path = Path(path).parent / "train_config.json"
@@ -199,7 +200,8 @@ def trained_env_options(path: Path) -> tuple[str | None, dict[str, Any]]:
         return None, {}
     try:
         cfg = json.loads(cfg_path.read_text())
-        keep = options_with_role(*POLICY_ROLES)  # what it observes and what its actions do
+        # what it observes and what its actions do; and its reward form, which the return column reports
+        keep = (*options_with_role(*POLICY_ROLES), "reward_form")
         return str(cfg["env_id"]), {k: v for k, v in dict(cfg.get("env", {})).items() if k in keep}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"cannot read the training configuration {cfg_path}: {exc}") from exc

@@ -16,8 +16,8 @@ from pettingzoo.test.seed_test import parallel_seed_test
 import cv2x_marl  # noqa: F401 - registers the ids
 import cv2x_marl.env as env_module
 from cv2x_marl.env import MobilityEnv
+from cv2x_marl.env.defaults import V1_DEFAULTS
 from cv2x_marl.env.observation import OWN_V1_NAMES
-from cv2x_marl.env.options import V1_DEFAULTS
 from cv2x_marl.env.single import SingleMoverEnv
 from cv2x_marl.regression import TwoDistanceModel
 

@@ -14,8 +14,8 @@ from pettingzoo.test import parallel_api_test
 import cv2x_marl  # noqa: F401 - registers the ids
 import cv2x_marl.env as env_module
 from cv2x_marl.env import MobilityEnv
+from cv2x_marl.env.defaults import V2_DEFAULTS
 from cv2x_marl.env.observation import OWN_V1_NAMES
-from cv2x_marl.env.options import V2_DEFAULTS
 from cv2x_marl.env.planning import ReachableSet, best_reachable, reachable_set, sensing_plan
 from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.sim.ground_truth import SnapshotLinks

@@ -247,7 +247,7 @@ def test_parallel_variant_passes_pettingzoos_api_test() -> None:
     from pettingzoo.test import parallel_api_test
 
     from cv2x_marl.env import parallel_env
-    from cv2x_marl.env.options import TRAFFIC_V1_DEFAULTS
+    from cv2x_marl.env.defaults import TRAFFIC_V1_DEFAULTS
 
     env = parallel_env(**TRAFFIC_V1_DEFAULTS, overrides=OVERRIDES, max_cycles=3)
     parallel_api_test(env, num_cycles=3)

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 import cv2x_marl  # noqa: F401 - registers the ids
+from cv2x_marl.env.defaults import V3_DEFAULTS
 from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv
 from cv2x_marl.env.mover_batch import MoverBatch, batch_problem
 from cv2x_marl.env.mover_links import MoverLinksStep
-from cv2x_marl.env.options import V3_DEFAULTS
 from cv2x_marl.env.single import SingleMoverEnv
 from cv2x_marl.sim import kernels
 
