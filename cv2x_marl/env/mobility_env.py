@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -37,6 +37,8 @@ from cv2x_marl.sim.ground_truth import PairGeometry
 from cv2x_marl.sim.road import Road
 
 FloatArray = NDArray[np.float64]
+#: options the env derives rather than copies: ``max_step_m`` (a float), ``max_drift_m`` (traffic mode's default)
+_DERIVED = ("max_step_m", "max_drift_m")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -97,13 +99,20 @@ class MobilityEnv(ParallelEnv):
                 "per episode (open populations, where vehicles enter and leave, are for the simulator: "
                 "cv2x-marl simulate, docs/mobility.md)"
             )
-        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`)
+        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`); each is also an attribute (plain
+        #: instance attributes: the step reads them often) unless the class derives it (``max_step_m``, ...)
         self.options = opts
+        self.__dict__.update(
+            (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.name not in _DERIVED
+        )
         self.config = cfg
         self.n = cfg.n_vehicles
         #: the horizon in force (steps): ``max_cycles`` or a shorter Gymnasium ``TimeLimit`` (v3's time left)
         self.horizon = opts.max_cycles
         #: the drift bound in force (m; traffic mode: 10 m unless set); :attr:`drift_m` is the kernels' (inf: none)
+        self.max_step_m = float(opts.max_step_m)  # m
+        #: the ``reward`` and ``model`` options under the names the policies read
+        self.reward_kind, self.model_name = opts.reward, opts.model
         self.max_drift_m = opts.max_drift_m if opts.max_drift_m is not None or opts.mode == "snapshot" else 10.0
         self.drift_m = np.inf if self.max_drift_m is None else float(self.max_drift_m)
         self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
@@ -142,32 +151,14 @@ class MobilityEnv(ParallelEnv):
         self._live: set[str] = set()
         self._fig: Any = None
 
-    def __getattr__(self, name: str) -> Any:
-        """The options as attributes (``env.max_cycles`` is ``env.options.max_cycles``)."""
-        options = self.__dict__.get("options")
-        if options is None or name.startswith("__") or name not in EnvOptions.__dataclass_fields__:
-            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-        return getattr(options, name)
+    if TYPE_CHECKING:  # the options are attributes (set in __init__ from the schema, not restated here)
 
-    @property
-    def max_step_m(self) -> float:
-        """The ``max_step_m`` option as a float (m)."""
-        return float(self.options.max_step_m)
-
-    @property
-    def reward_kind(self) -> str:
-        """The ``reward`` option."""
-        return self.options.reward
+        def __getattr__(self, name: str) -> Any: ...
 
     @property
     def drives(self) -> bool:
         """The lane model drives the movers (``traffic_action="speed"``, ``vehicles.mobility=model``)."""
         return isinstance(self.dynamics, TargetSpeed) and self.config.vehicles.mobility == "model"
-
-    @property
-    def model_name(self) -> str:
-        """The ``model`` option (the two-distance model's name or path)."""
-        return self.options.model
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, agent: str) -> spaces.Box:
