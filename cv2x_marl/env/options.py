@@ -30,7 +30,8 @@ from numpy.typing import NDArray
 
 from cv2x_marl import schema
 from cv2x_marl.checks import is_int, is_real
-from cv2x_marl.config import TRUTH_LOS, ScenarioConfig
+from cv2x_marl.config import TRUTH_LOS, ScenarioConfig, apply_overrides
+from cv2x_marl.config import preset as load_preset
 from cv2x_marl.env.defaults import VERSION_DEFAULTS  # the defaults of each id
 from cv2x_marl.env.observation import VERSION_BLOCKS, VERSIONS
 
@@ -473,9 +474,6 @@ class EnvOptions:
 
     def scenario(self) -> ScenarioConfig:
         """The scenario: :attr:`config`, else :attr:`preset` with :attr:`overrides`."""
-        from cv2x_marl.config import apply_overrides
-        from cv2x_marl.config import preset as load_preset
-
         return self.config if self.config is not None else apply_overrides(load_preset(self.preset), self.overrides)
 
     def check_scenario(self, cfg: ScenarioConfig, scene_diagonal_m: float, box_m: NDArray[np.float64]) -> None:

@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from cv2x_marl.sim import kernels
+from cv2x_marl.sim.ground_truth import MoverRow, mean_rx_dbm
 from cv2x_marl.utility import utility_log
 
 if TYPE_CHECKING:
@@ -394,9 +396,6 @@ def measured_row(env: PlanningEnv, mover: int) -> Any:
         env: a snapshot-mode env with observation version 3 (its ``measure``).
         mover: the vehicle index.
     """
-    from cv2x_marl.sim import kernels
-    from cv2x_marl.sim.ground_truth import MoverRow, mean_rx_dbm
-
     links = env.links
     if not links.compiled:
         raise ValueError(

@@ -32,6 +32,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.env.observation import OWN_V1
+from cv2x_marl.sim import mobility
 from cv2x_marl.sim.kernels import moved_signal_dbm, success_at_level
 from cv2x_marl.utility import link_summary
 
@@ -542,12 +543,10 @@ def drive_state(sim: Any, lanes_per_direction: int) -> tuple[FloatArray, FloatAr
     simulator's vehicles: the lane model's state, or on SUMO lockstep SUMO's speed, angle and lane index (SUMO's
     rightmost lane 0 is lane ``lanes_per_direction - 1`` here; on a junction's internal lanes their index, clipped
     to the road's lanes)."""
-    from cv2x_marl.sim import mobility
-
     st = sim.state
     if isinstance(st, mobility.VehicleState):
         return st.speed_mps, mobility.headings(st), st.lane
-    from cv2x_marl.sim import sumo
+    from cv2x_marl.sim import sumo  # libsumo: a heavy optional dependency
 
     lock = sumo.lockstep_of(sim)
     top = lanes_per_direction - 1

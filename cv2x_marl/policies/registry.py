@@ -21,6 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cv2x_marl.policies import traffic
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
 from cv2x_marl.policies.mappo import MappoPolicy, is_mappo_file
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
@@ -91,8 +92,6 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
     """
     refuse_action_space(spec, env)
     if drives(env) and spec in ROAD_POLICIES and spec != "random":
-        from cv2x_marl.policies import traffic
-
         if spec == "static":
             return traffic.HoldSpeedPolicy(env)
         if spec == "gbmu":

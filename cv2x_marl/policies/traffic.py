@@ -30,8 +30,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cv2x_marl.env import step as step_core
 from cv2x_marl.env.observation import OWN_DRIVE_NAMES
 from cv2x_marl.policies.base import Actions, Observations, Policy
+from cv2x_marl.sim import mobility
+from cv2x_marl.sim.ground_truth import SnapshotLinks
 
 if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
@@ -410,10 +413,6 @@ class RoadSensingPolicy:
         self.targets = {}
 
     def _plan(self, i: int) -> float:
-        from cv2x_marl.env import step as step_core
-        from cv2x_marl.sim import mobility
-        from cv2x_marl.sim.ground_truth import SnapshotLinks
-
         env = self.env
         st = env.sim.state
         assert isinstance(st, mobility.VehicleState)
