@@ -14,7 +14,6 @@ keeps the episode state and the PettingZoo plumbing; :mod:`cv2x_marl.env.mover_s
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -30,9 +29,8 @@ from cv2x_marl.env.infos import DRIVE_INFO_KEYS, EPISODE_INFO_KEYS, INFO_KEYS, g
 from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
 from cv2x_marl.env.observation_fills import fill_drive
 from cv2x_marl.env.observation_models import OwnState, observation_model
-from cv2x_marl.env.options import EnvOptions
+from cv2x_marl.env.options import EnvOptions, options_signature
 from cv2x_marl.env.rewards import RewardModel
-from cv2x_marl.sim import Simulator
 from cv2x_marl.sim.ground_truth import PairGeometry
 from cv2x_marl.sim.road import Road
 
@@ -173,30 +171,8 @@ class MobilityEnv(ParallelEnv):
         ``s`` and reseeds the env's own generator with ``s``; a later ``reset()`` draws its episode seed
         from that generator, so the same seeded first reset gives the same sequence of episodes.
         Without any seed the generator starts from OS entropy."""
-        if seed is not None:
-            if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-                raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
-            self._np_random = np.random.default_rng(int(seed))
-            episode_seed = int(seed)
-        else:
-            if self._np_random is None:
-                self._np_random = np.random.default_rng()
-            if self.start_pool:
-                episode_seed = starts.pool_seed(self, self._np_random)
-            else:
-                episode_seed = int(self._np_random.integers(0, 2**31 - 1))
-        self.seed_used = episode_seed
-        keep = starts.cache_size(self) > 0
-        cached = starts.cached_start(self, episode_seed) if keep else None
-        if cached is None:
-            self.sim = Simulator(self.config)
-            self.sim.keep_period_geometry = self.observer.keep_period_geometry
-            self.snapshot = self.sim.reset(episode_seed)
-            self.dynamics.start(episode_seed)
-        else:  # traffic mode: a copy of the kept simulator (the episode runs it on); links are snapshot mode's
-            self.sim, self.snapshot, links = cached.open()
-            if links is not None:
-                self.links = links
+        episode_seed = self.seed_used = starts.episode_seed(self, seed)
+        cached = starts.open_start(self, episode_seed)
         snap = self.snapshot
         self.start_m = snap.positions_m.copy()
         self.positions_m = snap.positions_m.copy()
@@ -216,7 +192,7 @@ class MobilityEnv(ParallelEnv):
         self.u_sum, self.prr_sum, self.jain_sum = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
         self.rewarder.reset(self)
         self.observer.reset(self, episode_seed, None if cached is None else cached.plan_m)
-        if keep and cached is None:
+        if cached is None and starts.cache_size(self) > 0:
             starts.store_start(self, episode_seed)
         obs = self.observations()
         infos = infos_of(self, np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
@@ -342,15 +318,4 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
-def _signature() -> inspect.Signature:
-    """``MobilityEnv(options=None, *, <every option>=<its default>)``, for ``help()`` and introspection."""
-    params = [inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
-    params.append(inspect.Parameter("options", inspect.Parameter.POSITIONAL_OR_KEYWORD, default=None))
-    params += [
-        inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default)
-        for f in dataclasses.fields(EnvOptions)
-    ]
-    return inspect.Signature(params)
-
-
-MobilityEnv.__init__.__signature__ = _signature()  # type: ignore[attr-defined]
+MobilityEnv.__init__.__signature__ = options_signature()  # type: ignore[attr-defined]  # help() lists every option

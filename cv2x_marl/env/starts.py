@@ -102,3 +102,35 @@ def pool_seed(env: MobilityEnv, rng: np.random.Generator) -> int:
     seeds, uniformly, drawn from the env's generator ``rng``."""
     pool = training_pool(env.start_pool)
     return int(pool[int(rng.integers(len(pool)))])
+
+
+def episode_seed(env: MobilityEnv, seed: int | None) -> int:
+    """The episode seed of ``env.reset(seed=seed)``, as Gymnasium seeds: ``seed`` itself, reseeding the env's own
+    generator with it; without a seed a draw from that generator (OS entropy the first time), or with
+    ``start_pool`` one of the pool's seeds (:func:`pool_seed`)."""
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ValueError(f"invalid reset seed={seed!r}; allowed: an integer >= 0 or None")
+        env._np_random = np.random.default_rng(int(seed))
+        return int(seed)
+    if env._np_random is None:
+        env._np_random = np.random.default_rng()
+    if env.start_pool:
+        return pool_seed(env, env._np_random)
+    return int(env._np_random.integers(0, 2**31 - 1))
+
+
+def open_start(env: MobilityEnv, seed: int) -> Start | None:
+    """Set the episode's simulator, snapshot (and in snapshot mode its links) on ``env``: a kept start when the
+    cache holds one (returned; traffic mode runs on a copy of its simulator), else a fresh stage-1 run (None)."""
+    cached = cached_start(env, seed) if cache_size(env) > 0 else None
+    if cached is None:
+        env.sim = Simulator(env.config)
+        env.sim.keep_period_geometry = env.observer.keep_period_geometry
+        env.snapshot = env.sim.reset(seed)
+        env.dynamics.start(seed)
+        return None
+    env.sim, env.snapshot, links = cached.open()
+    if links is not None:
+        env.links = links
+    return cached

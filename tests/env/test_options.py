@@ -13,14 +13,14 @@ from cv2x_marl.env.options import (
     MAX_CYCLES,
     VERSION_DEFAULTS,
     EnvOptions,
-    options_markdown,
 )
+from cv2x_marl.env.options_table import options_markdown
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "env.md"
 
 
 def test_docs_table_is_current() -> None:
-    assert options_markdown() in DOC.read_text(), "regenerate with: python -m cv2x_marl.env.options"
+    assert options_markdown() in DOC.read_text(), "regenerate with: python -m cv2x_marl.env.options_table"
 
 
 def test_unknown_names_are_refused_listing_the_allowed_ones() -> None:
