@@ -71,6 +71,6 @@ def test_the_policy_snippet_of_a_page_runs_as_written(env_id: str) -> None:
     section = text.split("## Policies", 1)[1]
     code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
     scope: dict[str, object] = {}
-    exec(compile(code, f"{page_name(env_id)} (Policies)", "exec"), scope)  # noqa: S102 - the page's own snippet
+    exec(compile(code, f"{page_name(env_id)} (Policies)", "exec"), scope)  # the page's own snippet
     env = scope["env"]
     assert env.agents == [] and env.t == 100  # type: ignore[attr-defined]  # the episode ran to its end
