@@ -16,6 +16,7 @@ from cv2x_marl.cli.common import (
     print_json,
 )
 from cv2x_marl.cli.env_flags import add_option_flag
+from cv2x_marl.env.registry import DEFAULT_ENV_ID
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -23,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--env",
         default=None,
         choices=ENV_CHOICES,
-        help="default: the env a ppo:PATH model was trained on, else cv2x/SingleMover-v2",
+        help=f"default: the env a ppo:PATH model or a baseline file names, else {DEFAULT_ENV_ID}",
     )
     p.add_argument(
         "--policy",

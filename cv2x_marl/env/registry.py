@@ -158,8 +158,8 @@ SINGLE_MOVER_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/SingleMover-")
 COOPERATIVE_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Cooperative-"))
 #: the traffic task and its variant observing what the mover measured (Gymnasium and PettingZoo)
 TRAFFIC_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Traffic-"))
-#: the id commands run when none is given
-DEFAULT_ENV_ID = "cv2x/SingleMover-v2"
+#: the id commands run when none is given (the benchmark's single-mover task)
+DEFAULT_ENV_ID = "cv2x/SingleMover-v3"
 
 
 def spec_of(env_id: str) -> EnvSpec:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cv2x_marl.checks import is_real
-from cv2x_marl.env.registry import DEFAULT_ENV_ID, ENV_IDS
+from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.policies.base import Policy
 from cv2x_marl.policies.gbmu import SCHEDULES, StepSchedule
 from cv2x_marl.policies.registry import MODELLED, SCRIPTED, make_policy
@@ -48,6 +48,10 @@ SCHEDULED = ("gbmu", "greedy")
 SUFFIXES = (".yaml", ".yml", ".json")
 
 
+#: the env of a baseline file without ``env_id``: the one the baselines table (``baselines/results.md``) was made on
+BASELINE_ENV_ID = "cv2x/SingleMover-v2"
+
+
 @dataclass(frozen=True)
 class Baseline:
     """One baseline file, validated."""
@@ -56,7 +60,7 @@ class Baseline:
     policy: str
     model: str = PAPER_MODEL
     delta: float = 100.0
-    env_id: str = DEFAULT_ENV_ID
+    env_id: str = BASELINE_ENV_ID
     env: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     step_schedule: str = "constant"
@@ -87,7 +91,7 @@ def load_baseline(path: str | Path) -> Baseline:
     delta = data.get("delta", 100.0)
     if not is_real(delta) or delta <= 0:
         raise ValueError(f"baseline file {path}: delta must be a finite number > 0, got {delta!r}")
-    env_id = data.get("env_id", DEFAULT_ENV_ID)
+    env_id = data.get("env_id", BASELINE_ENV_ID)
     if env_id not in ENV_IDS:
         raise ValueError(f"baseline file {path}: env_id must be one of {', '.join(ENV_IDS)}, got {env_id!r}")
     env = data.get("env", {}) or {}
