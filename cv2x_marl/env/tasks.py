@@ -1,4 +1,4 @@
-"""The benchmark's tasks (issue 27, docs/benchmark.md): per task its env id, its fixed env options, the
+"""The benchmark's tasks (docs/benchmark.md): per task its env id, its fixed env options, the
 scripted methods that apply, its ceiling, its training and held-out episode seeds, and the policies it
 refuses.
 
@@ -37,12 +37,11 @@ from cv2x_marl.env.seeds import (  # noqa: F401 - the protocol's lists, re-expor
     training_pool,
 )
 
-#: the env ids of the tasks, in one place (issue 27's new ids; tests stand them in with the v2 ids
-#: until those are registered)
+#: the env ids of the tasks, in one place
 TASK_ENV_IDS: Mapping[str, str] = MappingProxyType(
     {"singlemover": "cv2x/SingleMover-v3", "cooperative": "cv2x/Cooperative-v0", "traffic": "cv2x/Traffic-v0"}
 )
-#: tasks of issue 27 not built yet: name -> what is missing (refused by name, never run)
+#: tasks announced but not built yet: name -> what is missing (refused by name, never run; none today)
 PENDING_TASKS: Mapping[str, str] = MappingProxyType({})
 #: the fixed env options of every task: the CLI's `evaluate` defaults (paper preset, 100 steps of 5 m)
 BASE_OPTIONS: Mapping[str, Any] = MappingProxyType({"preset": "paper", "max_cycles": 100, "max_step_m": 5.0})
