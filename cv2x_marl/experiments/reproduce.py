@@ -2,7 +2,9 @@
 
 stage-1 dataset -> stage-2 fit (Tables 2-3) -> GBMU study (Fig. 9-10) -> evaluation of the
 shipped PPO movers against static, random, GBMU, greedy and the oracle on the same held-out
-episodes of both envs -> ``REPORT.md`` with the figures, and ``report.json``.
+episodes of both envs -> the benchmark (every task's scripts, shipped learners and ceiling on its
+held-out episodes, :mod:`cv2x_marl.experiments.benchmark`) -> ``REPORT.md`` with the figures and
+tables, and ``report.json``.
 
 The PPO models are an input, checked before anything runs or is written (:func:`check_models`):
 a folder that does not exist or lacks the models of either env is refused; ``models_dir=None``
@@ -21,11 +23,13 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.config import preset
+from cv2x_marl.experiments.benchmark import run_benchmark
 from cv2x_marl.experiments.dataset import build_dataset, run_fit
 from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.experiments.gbmu_study import run_study
 from cv2x_marl.extras import missing_extra
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.parallel import usable_cpus
 from cv2x_marl.regression.model import load_model
 from cv2x_marl.runs import RunFolder
 
@@ -39,6 +43,23 @@ KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", 
 
 #: what ``--models`` says to leave the PPO models out
 NO_MODELS = "none"
+#: the shipped learners of each benchmark task, under the models folder (a glob: the training runs of one method)
+BENCHMARK_MODELS = {
+    "singlemover": "singlemover-v3_seed*/model.zip",
+    "cooperative": "cooperative_seed*/model.pt",
+    "traffic": "traffic_seed*/model.zip",
+}
+
+
+def benchmark_models(models_dir: Path | None) -> list[str]:
+    """``TASK=ppo:GLOB`` of every benchmark task whose shipped learners ``models_dir`` holds (none: scripts only)."""
+    if models_dir is None:
+        return []
+    return [
+        f"{task}=ppo:{Path(models_dir) / pattern}"
+        for task, pattern in BENCHMARK_MODELS.items()
+        if any(Path(models_dir).glob(pattern))
+    ]
 
 
 def shipped_models(models_dir: Path, kind: str) -> list[Path]:
@@ -108,30 +129,34 @@ def reproduce(
     ``models_dir`` is checked first (:func:`check_models`; None: no PPO rows): a missing folder or
     missing models are refused before ``out`` is touched."""
     models = check_models(models_dir)
+    learners = benchmark_models(models_dir)
     params = {"quick": quick, "seed": seed, "models_dir": None if models_dir is None else str(models_dir)}
     inputs = [] if models_dir is None else [models_dir]
     with RunFolder(out, "reproduce", overwrite=overwrite, parameters=params, inputs=inputs):
-        return _reproduce(Path(out), quick, seed, models, progress)
+        return _reproduce(Path(out), quick, seed, models, progress, learners)
 
 
-def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]], progress: bool) -> dict[str, Any]:
+def _reproduce(
+    out: Path, quick: bool, seed: int, models: dict[str, list[Path]], progress: bool, learners: list[str]
+) -> dict[str, Any]:
     from cv2x_marl import plotting
 
     t0 = time.perf_counter()
-    settings = {
+    settings: dict[str, Any] = {
         "runs": 4 if quick else 10,
         "realizations": 48 if quick else 144,
         "iterations": 2000 if quick else 10_000,
         "episodes_single": 48 if quick else 144,
         "episodes_multi": 12 if quick else 144,
+        "episodes_benchmark": 4 if quick else None,  # per task; None: every held-out episode
     }
     log = (lambda msg: print(msg, file=sys.stderr)) if progress else (lambda msg: None)
     cfg = preset("paper")
-    log(f"[1/4] stage-1 dataset: {settings['runs']} paper runs")
+    log(f"[1/5] stage-1 dataset: {settings['runs']} paper runs")
     build_dataset(cfg, settings["runs"], seed, out / "dataset", progress=False)
-    log("[2/4] stage-2 fit (linear eq. 15, compared with logistic)")
+    log("[2/5] stage-2 fit (linear eq. 15, compared with logistic)")
     fit = run_fit(out / "dataset", out / "fit", compare=True)
-    log(f"[3/4] GBMU study: {settings['realizations']} realisations x {settings['iterations']} iterations")
+    log(f"[3/5] GBMU study: {settings['realizations']} realisations x {settings['iterations']} iterations")
     study = {}
     for name, model_path in (("paper-table2", "paper-table2"), ("ours", str(out / "fit"))):
         study[name] = run_study(
@@ -144,7 +169,7 @@ def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]],
             iterations=settings["iterations"],
             progress=False,
         )
-    log("[4/4] movers on the env: scripted policies and the shipped PPO models")
+    log("[4/5] movers on the env: scripted policies and the shipped PPO models")
     tables: dict[str, list[dict[str, Any]]] = {}
     for kind, env_id in ENVS.items():
         episodes = settings[f"episodes_{kind}"]
@@ -179,6 +204,13 @@ def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]],
                 curves[m.parent.name] = [dict(zip(head, map(float, ln.split(",")), strict=True)) for ln in lines[1:]]
         if curves:
             plotting.plot_learning_curves(curves, out / f"learning-{kind}.png", f"PPO training on {env_id}")
+    n_bench = settings["episodes_benchmark"]
+    log(f"[5/5] the benchmark: scripts, shipped learners and ceiling on {n_bench or 'all'} held-out episodes per task")
+    workers = min(2, usable_cpus())
+    bench = run_benchmark(
+        out / "benchmark", models=learners, episodes=n_bench, workers=workers, progress=False,
+        backend="processes", episodes_per_job=n_bench,
+    )  # fmt: skip
     report = {
         "quick": quick,
         "seed": seed,
@@ -186,9 +218,11 @@ def _reproduce(out: Path, quick: bool, seed: int, models: dict[str, list[Path]],
         "fit": {"per_nsv": fit["per_nsv"], "comparison": fit.get("comparison")},
         "gbmu_study": {k: {m: v["methods"][m] for m in v["methods"]} for k, v in study.items()},
         "movers": tables,
+        "benchmark": {"tasks": list(bench["tasks"]), "learners": learners, "wall_s": bench["wall_s"]},
         "ppo": bool(models),
         "runtime_s": time.perf_counter() - t0,
     }
+    report["benchmark_table"] = (out / "benchmark" / "table.md").read_text(encoding="utf-8")
     report["files"] = written_files(out)  # what the markdown may cite (REPORT.md itself comes next)
     write_json(out / "report.json", report)
     atomic_write(out / "REPORT.md", lambda p: p.write_text(_markdown(report)))
@@ -278,4 +312,19 @@ def _markdown(r: dict[str, Any]) -> str:
                 f"{cell('mean_prr_gain', '+.1f')} | {cell('jain_fairness', '')} | {row['n_prr_drop']:.1f} |"
             )
         lines += ["", *_cite(files, [f"comparison-{kind}.png", f"learning-{kind}.png"])]
+    bench = r.get("benchmark")
+    if bench is not None and "benchmark/table.md" in files:
+        n = s.get("episodes_benchmark")
+        lines += [
+            "",
+            f"## The benchmark ({'every' if n is None else n} held-out episode{'s' if n != 1 else ''} per task)",
+            "",
+            "Every task's scripts, its ceiling and the shipped learners (`ppo`: their training runs pooled) on the "
+            "same held-out episodes; utility gain and share of the ceiling as IQM with 95 % bootstrap intervals "
+            "(docs/benchmark.md). With few episodes the intervals are wide: `cv2x-marl benchmark` runs them all.",
+            "",
+            r["benchmark_table"].strip(),
+            "",
+            *_cite(files, ["benchmark/benchmark.png"]),
+        ]
     return "\n".join(lines) + "\n"
