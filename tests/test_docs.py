@@ -94,3 +94,12 @@ def test_the_getting_started_first_env_runs_as_written(capsys: pytest.CaptureFix
     code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
     exec(compile(code, "docs/getting-started.md (The first env)", "exec"), {})
     assert capsys.readouterr().out.splitlines()[0] == "(351,)"
+
+
+def test_the_policy_guide_runs_as_written(capsys: pytest.CaptureFixture[str]) -> None:
+    page = (ROOT / "docs" / "policies.md").read_text(encoding="utf-8")
+    section = page.split("## A scripted mover from the observation", 1)[1]
+    code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
+    exec(compile(code, "docs/policies.md (A scripted mover)", "exec"), {})
+    out = capsys.readouterr().out
+    assert re.fullmatch(r"mean utility gain over 2 episodes: [+-]\d+\.\d%\n", out), out
