@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from cv2x_marl.cli import COMMANDS, build_parser
-from cv2x_marl.cli.reference import reference
+from cv2x_marl.cli.reference import api, reference
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the pages a user reads: the README and docs/ (the research log, docs/research/, is apart; CHANGELOG is history)
@@ -47,6 +47,11 @@ def test_the_residue_patterns_catch_what_they_name() -> None:
 def test_the_command_line_reference_is_current() -> None:
     page = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
     assert page == reference(), "regenerate with: python -m cv2x_marl.cli.reference > docs/cli.md"
+
+
+def test_the_api_reference_is_current() -> None:
+    page = (ROOT / "docs" / "api.md").read_text(encoding="utf-8")
+    assert page == api(), "regenerate with: python -m cv2x_marl.cli.reference api > docs/api.md"
 
 
 def _commands(text: str) -> list[str]:
