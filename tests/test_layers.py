@@ -23,6 +23,7 @@ LAYERS: dict[str, int] = {
     "cv2x_marl.yamlcore": 0,
     "cv2x_marl.extras": 0,
     "cv2x_marl.runs": 0,
+    "cv2x_marl.run_manifest": 0,
     "cv2x_marl.interrupts": 0,
     "cv2x_marl.plotting": 0,
     "cv2x_marl.parallel": 0,
