@@ -356,8 +356,6 @@ def evaluate_rows(
     seeds: Sequence[int] | None = None,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """:func:`evaluate`'s summary and its per-mover rows (those of ``episodes.csv``)."""
-    from tqdm import tqdm
-
     from cv2x_marl.env import tasks
 
     if seeds is not None:
@@ -367,22 +365,8 @@ def evaluate_rows(
         episodes = len(seeds)
     check_episodes(episodes, 1)  # the count itself; with the env's movers below
     several = isinstance(policy_spec, Sequence) and not isinstance(policy_spec, str)
-    specs: list[str | Policy] = list(policy_spec) if several else [policy_spec]  # type: ignore[arg-type,list-item]
-    if not specs:
-        raise ValueError("--policy: give at least one policy")
-    if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
-        raise ValueError(
-            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
-            f"got {names_of(specs)}"
-        )
-    resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
+    resolved = _resolve_runs(env_id, policy_spec, several, env_kwargs, model_path, delta)
     first = resolved[0]
-    for r in resolved[1:]:
-        if (r.env_id, r.env_kwargs) != (first.env_id, first.env_kwargs):
-            raise ValueError(
-                f"--policy: the runs of one evaluation must share the env; {r.policy} resolves to {r.env_id} "
-                f"{r.env_kwargs}, {first.policy} to {first.env_id} {first.env_kwargs}"
-            )
     env_id = first.env_id or DEFAULT_ENV_ID
     task = tasks.task_of_env(env_id)
     for r in resolved:  # a policy the task cannot run: refused by name before the env is built
@@ -406,67 +390,9 @@ def evaluate_rows(
         params["seeds"] = seeds
     inputs = [p for r in resolved for p in r.inputs]
     with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params, inputs=inputs):
-        zero = np.zeros(2, dtype=np.float32)
-        rows: list[dict[str, Any]] = []
-        optimum_cache: dict[int, np.ndarray] = {}
-        # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
-        means = bool(getattr(env.options, "episode_metrics", False))
-        static_cache: dict[int, tuple[float, float]] = {}
+        means = bool(getattr(env.options, "episode_metrics", False))  # episode metrics (cv2x/Traffic-v0)
         t0 = time.perf_counter()
-        steps = 0
-        for run, policy in enumerate(policies):
-            ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
-            bar = tqdm(ep_seeds, total=episodes, desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
-            for ep, ep_seed in enumerate(bar):
-                obs, infos = env.reset(seed=ep_seed)
-                policy.reset(ep_seed)
-                if ref is not None and ep not in optimum_cache:
-                    if ref_env is not env:  # the same episode in the env the ceiling acts in
-                        ref_env.reset(seed=ep_seed)
-                    optimum_cache[ep] = optimum_utilities(ref_env, ref)
-                u_opt = optimum_cache.get(ep)
-                if means and ep not in static_cache:
-                    from cv2x_marl.policies.traffic import reference_means
-
-                    static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
-                returns = dict.fromkeys(movers, 0.0)
-                last = infos
-                while env.agents:
-                    acts = policy.act({a: obs[a] for a in movers})
-                    full = {a: acts.get(a, zero) for a in env.agents}
-                    obs, rew, _, _, last = env.step(full)
-                    steps += 1
-                    for a in movers:
-                        returns[a] += rew[a]
-                for a in movers:
-                    info = last[a]
-                    row: dict[str, Any] = {"run": run} if several else {}
-                    u_start, u_end, p_start, p_end = (
-                        info["utility_start"],
-                        info["utility"],
-                        info["prr_start"],
-                        info["prr"],
-                    )
-                    if means:  # the episode's means; the start: static's means on the same episode
-                        (u_start, p_start), u_end, p_end = static_cache[ep], info["utility_mean"], info["prr_mean"]
-                    row.update(
-                        {
-                            "episode": ep,
-                            "seed": ep_seed,
-                            "agent": a,
-                            "utility_start": u_start,
-                            "utility_end": u_end,
-                            "prr_start": p_start,
-                            "prr_end": p_end,
-                            "jain_end": info["jain"],
-                            "return": returns[a],
-                        }
-                    )
-                    if means:  # Jain's index of the mover's links, mean over the episode's periods
-                        row["jain_mean"] = info["jain_mean"]
-                    if u_opt is not None:
-                        row["utility_optimum"] = float(u_opt[env.agent_index[a]])
-                    rows.append(row)
+        rows, steps = _episode_rows(env, policies, movers, episodes, seed, seeds, several, ref, ref_env, progress)
         runtime = time.perf_counter() - t0
         u0 = np.array([r["utility_start"] for r in rows])
         u1 = np.array([r["utility_end"] for r in rows])
@@ -504,29 +430,149 @@ def evaluate_rows(
             if means:
                 summary["gains_of"] = "each mover's episode means against static's on the same episode"
         if vs_optimum:
-            uo = np.array([r["utility_optimum"] for r in rows])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
-            if team:
-                og = team_gain(rows, "utility_start", "utility_optimum")
-            for row, g in zip(rows, og, strict=True):
-                row["optimum_gain"] = float(g)
-            summary["optimum_utility_gain"] = float(np.nanmean(og))
-            summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
-            summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+            _add_optimum_gains(summary, rows, u0, u1, team)
         if protocol:
             summary.update(protocol_summary(rows, len(policies), episodes, vs_optimum))
             summary["seeds"] = seeds
         if out_dir is not None:
-            out_dir = Path(out_dir)
-            fields = [k for k in rows[0] if k != "optimum_gain"]
-
-            def write(tmp: Path) -> None:
-                with tmp.open("w", newline="") as fh:
-                    w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-                    w.writeheader()
-                    w.writerows(rows)
-
-            atomic_write(out_dir / "episodes.csv", write)
-            write_json(out_dir / "summary.json", summary)
+            _write_episodes(Path(out_dir), rows, summary)
         return summary, rows
+
+
+def _resolve_runs(
+    env_id: str | None,
+    policy_spec: str | Policy | Sequence[str | Policy],
+    several: bool,
+    env_kwargs: dict[str, Any] | None,
+    model_path: str,
+    delta: float,
+) -> list[_Resolved]:
+    """:func:`evaluate_rows`' policy specs resolved (:func:`_resolve`); several must be ``ppo:PATH`` runs of one
+    method on one env."""
+    specs: list[str | Policy] = list(policy_spec) if several else [policy_spec]  # type: ignore[arg-type,list-item]
+    if not specs:
+        raise ValueError("--policy: give at least one policy")
+    if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
+        raise ValueError(
+            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
+            f"got {names_of(specs)}"
+        )
+    resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
+    first = resolved[0]
+    for r in resolved[1:]:
+        if (r.env_id, r.env_kwargs) != (first.env_id, first.env_kwargs):
+            raise ValueError(
+                f"--policy: the runs of one evaluation must share the env; {r.policy} resolves to {r.env_id} "
+                f"{r.env_kwargs}, {first.policy} to {first.env_id} {first.env_kwargs}"
+            )
+    return resolved
+
+
+def _episode_rows(
+    env: MobilityEnv,
+    policies: list[Policy],
+    movers: list[str],
+    episodes: int,
+    seed: int,
+    seeds: Sequence[int] | None,
+    several: bool,
+    ref: Any,
+    ref_env: MobilityEnv,
+    progress: bool,
+) -> tuple[list[dict[str, Any]], int]:
+    """Every policy's episodes on ``env`` (:func:`evaluate_rows`): the per-mover rows and the env steps taken."""
+    from tqdm import tqdm
+
+    zero = np.zeros(2, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    optimum_cache: dict[int, np.ndarray] = {}
+    # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
+    means = bool(getattr(env.options, "episode_metrics", False))
+    static_cache: dict[int, tuple[float, float]] = {}
+    steps = 0
+    for run, policy in enumerate(policies):
+        ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
+        bar = tqdm(ep_seeds, total=episodes, desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+        for ep, ep_seed in enumerate(bar):
+            obs, infos = env.reset(seed=ep_seed)
+            policy.reset(ep_seed)
+            if ref is not None and ep not in optimum_cache:
+                if ref_env is not env:  # the same episode in the env the ceiling acts in
+                    ref_env.reset(seed=ep_seed)
+                optimum_cache[ep] = optimum_utilities(ref_env, ref)
+            u_opt = optimum_cache.get(ep)
+            if means and ep not in static_cache:
+                from cv2x_marl.policies.traffic import reference_means
+
+                static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
+            returns = dict.fromkeys(movers, 0.0)
+            last = infos
+            while env.agents:
+                acts = policy.act({a: obs[a] for a in movers})
+                full = {a: acts.get(a, zero) for a in env.agents}
+                obs, rew, _, _, last = env.step(full)
+                steps += 1
+                for a in movers:
+                    returns[a] += rew[a]
+            for a in movers:
+                row: dict[str, Any] = {"run": run} if several else {}
+                row.update(_mover_row(last[a], ep, ep_seed, a, returns[a], static_cache.get(ep) if means else None))
+                if u_opt is not None:
+                    row["utility_optimum"] = float(u_opt[env.agent_index[a]])
+                rows.append(row)
+    return rows, steps
+
+
+def _mover_row(
+    info: dict[str, Any], ep: int, ep_seed: int, agent: str, ret: float, static_means: tuple[float, float] | None
+) -> dict[str, Any]:
+    """One mover's row of an episode from its last info; ``static_means``: with episode metrics, static's
+    utility and PRR means on the same episode (the start), None without."""
+    u_start, u_end, p_start, p_end = info["utility_start"], info["utility"], info["prr_start"], info["prr"]
+    if static_means is not None:  # the episode's means; the start: static's means on the same episode
+        (u_start, p_start), u_end, p_end = static_means, info["utility_mean"], info["prr_mean"]
+    row: dict[str, Any] = {
+        "episode": ep,
+        "seed": ep_seed,
+        "agent": agent,
+        "utility_start": u_start,
+        "utility_end": u_end,
+        "prr_start": p_start,
+        "prr_end": p_end,
+        "jain_end": info["jain"],
+        "return": ret,
+    }
+    if static_means is not None:  # Jain's index of the mover's links, mean over the episode's periods
+        row["jain_mean"] = info["jain_mean"]
+    return row
+
+
+def _add_optimum_gains(
+    summary: dict[str, Any], rows: list[dict[str, Any]], u0: np.ndarray, u1: np.ndarray, team: bool
+) -> None:
+    """``vs_optimum``: each row's ``optimum_gain`` and the summary's optimum utility gain, share of the optimum and
+    the count of rows that beat it."""
+    uo = np.array([r["utility_optimum"] for r in rows])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+    if team:
+        og = team_gain(rows, "utility_start", "utility_optimum")
+    for row, g in zip(rows, og, strict=True):
+        row["optimum_gain"] = float(g)
+    summary["optimum_utility_gain"] = float(np.nanmean(og))
+    summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
+    summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+
+
+def _write_episodes(out_dir: Path, rows: list[dict[str, Any]], summary: dict[str, Any]) -> None:
+    """``episodes.csv`` (the rows, without ``optimum_gain``) and ``summary.json`` in ``out_dir``."""
+    fields = [k for k in rows[0] if k != "optimum_gain"]
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+
+    atomic_write(out_dir / "episodes.csv", write)
+    write_json(out_dir / "summary.json", summary)
