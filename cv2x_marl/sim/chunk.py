@@ -371,7 +371,7 @@ class ChunkRunner:
     def inband_leakage(self, total: NDArray[Any]) -> FloatArray:
         """``link.inband_emission_model=3gpp``: the leakage into each resource of each receiver,
         ``leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]`` (mW, [N * R]), summed in ``i`` order
-        element by element (so the compiled chunk's ``kernels.period._leak_mw`` gives the same bits; a BLAS
+        element by element (so the compiled chunk's ``kernels.period_passes._leak_mw`` gives the same bits; a BLAS
         product may sum in another order).
 
         Args:
