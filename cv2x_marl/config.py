@@ -267,6 +267,7 @@ def preset(name: str) -> ScenarioConfig:
 def apply_overrides(cfg: ScenarioConfig, assignments: Iterable[str]) -> ScenarioConfig:
     """Apply ``section.key=value`` strings (values parsed as YAML 1.2 core scalars, :mod:`cv2x_marl.yamlcore`:
     4, 0.5, 5.9e9, true, null; ``010`` is 10, ``1:40`` a string)."""
+    # here, not at the top: the CLI imports this module at start, and yamlcore's pyyaml adds 12 ms to `--help`
     from cv2x_marl.yamlcore import YAMLError, parse_scalar
 
     nested: dict[str, dict[str, Any]] = {}
@@ -303,7 +304,7 @@ def load_config_file(
         ConfigError: the file cannot be read or is too large, a bad key or value, or a ``preset:``
             line that disagrees with ``given_preset``.
     """
-    from cv2x_marl.yamlcore import load_mapping
+    from cv2x_marl.yamlcore import load_mapping  # here, not at the top: as in apply_overrides
 
     data = load_mapping(path, "configuration file", ConfigError)
     if "preset" in data:

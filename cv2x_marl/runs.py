@@ -52,6 +52,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import cv2x_marl
 from cv2x_marl.io import write_json
 from cv2x_marl.run_manifest import (  # noqa: F401 - re-exported: runs' names before the split
     KIND,
@@ -481,8 +482,6 @@ def _segment(previous: dict[str, Any]) -> dict[str, Any]:
 
 def _versions() -> dict[str, str]:
     import numpy as np
-
-    import cv2x_marl
 
     return {"cv2x_marl": cv2x_marl.__version__, "numpy": np.__version__, "python": platform.python_version()}
 

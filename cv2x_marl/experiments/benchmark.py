@@ -19,8 +19,10 @@ per method present in every task the share of the ceiling aggregated over the ta
 strata), ``table.md`` and ``benchmark.png``; the rows, the summary and the table are
 :mod:`cv2x_marl.experiments.benchmark_rows`' (re-exported here).
 
-This module imports only the standard library and :mod:`~cv2x_marl.experiments.benchmark_rows` at its top (the
-CLI builds its parser from it).
+The CLI builds its parser from this module, whose top therefore imports nothing that loads numpy (the standard
+library, :mod:`cv2x_marl.env.registry`, :mod:`cv2x_marl.io`, :mod:`cv2x_marl.runs`, :mod:`cv2x_marl.parallel`,
+:mod:`~cv2x_marl.experiments.benchmark_rows`; ``tests/test_install_layers.py``): the tasks, the env options, the
+policies and the evaluation are imported in the functions that use them.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from cv2x_marl import parallel
+from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.experiments.benchmark_rows import (
     CSV_FIELDS,
     read_rows,
@@ -41,6 +45,8 @@ from cv2x_marl.experiments.benchmark_rows import (
     summarise,
     table_markdown,
 )
+from cv2x_marl.io import atomic_write, dumps_json, write_json
+from cv2x_marl.runs import run_folder
 
 if TYPE_CHECKING:
     from cv2x_marl.env.tasks import Task
@@ -94,7 +100,6 @@ def plan_jobs(
     all of them in one job), checked before anything runs: available tasks, methods each task accepts
     (its refusals, names :func:`~cv2x_marl.policies.registry.make_policy` knows, searches it can afford:
     each task's env and policies are built once here)."""
-    from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.env.tasks import get_task
     from cv2x_marl.policies.registry import SCRIPTED, make_policy
 
@@ -219,7 +224,6 @@ def _execute(
     total = sum(len(j["seeds"]) for j in jobs)
     with tqdm(total=total, desc="benchmark", unit="ep", file=sys.stderr, disable=not progress) as bar:
         if backend == "processes" and address is None:
-            from cv2x_marl.parallel import map_in_processes
 
             def finished(i: int, _: Any) -> None:
                 bar.update(len(jobs[i]["seeds"]))
@@ -228,7 +232,7 @@ def _execute(
             def cost(job: dict[str, Any]) -> float:
                 return float(len(job["seeds"]) * (100 if job["method"] == "optimum" else 1))
 
-            return list(map_in_processes(run_job, jobs, workers, cost=cost, on_done=finished))
+            return list(parallel.map_in_processes(run_job, jobs, workers, cost=cost, on_done=finished))
         if workers == 1 and address is None:
             out = []
             for job in jobs:
@@ -236,9 +240,7 @@ def _execute(
                 out.append(run_job(job))
                 bar.update(len(job["seeds"]))
             return out
-        from cv2x_marl.parallel import ray_session
-
-        with ray_session(address, num_cpus=None if address else workers) as ray:
+        with parallel.ray_session(address, num_cpus=None if address else workers) as ray:
             remote = ray.remote(num_cpus=1)(run_job)
             refs = [remote.remote(j) for j in jobs]
             index = {r: i for i, r in enumerate(refs)}
@@ -265,12 +267,11 @@ def check_workers(workers: int, jobs: Sequence[Mapping[str, Any]], address: str 
     :data:`LEARNED_WORKER_BYTES` when a learned model runs, plus this process).
 
     A Ray cluster (``address``) schedules on its own CPUs: only the local checks are skipped."""
-    from cv2x_marl.parallel import usable_cpus
     from cv2x_marl.sim.memory import format_bytes, memory_limit
 
     if address is not None or workers == 1:
         return 0
-    cpus = usable_cpus()
+    cpus = parallel.usable_cpus()
     if workers > cpus:
         raise ValueError(
             f"--workers {workers}: this machine lets the run use {cpus} CPU(s); give at most {cpus} (each worker "
@@ -325,8 +326,6 @@ def run_benchmark(
             runs. Its rows are the code's that wrote them: the run's ``run.json`` records the file.
     """
     from cv2x_marl.env import tasks as task_module
-    from cv2x_marl.io import atomic_write, write_json
-    from cv2x_marl.runs import run_folder
 
     table = task_module.TASKS if task_table is None else task_table
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -335,8 +334,8 @@ def run_benchmark(
         raise ValueError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if backend == "processes" and address is not None:
         raise ValueError("--address names a Ray cluster: it goes with --backend ray, not processes")
-    parallel = workers > 1 or address is not None
-    chunk = episodes_per_job if episodes_per_job is not None else (EPISODES_PER_JOB if parallel else None)
+    in_parallel = workers > 1 or address is not None
+    chunk = episodes_per_job if episodes_per_job is not None else (EPISODES_PER_JOB if in_parallel else None)
     jobs = plan_jobs(table, tasks, methods, parse_models(models, table), episodes, chunk)
     earlier = read_rows(rows_from) if rows_from is not None else {}
     todo, reused = reuse_rows(jobs, earlier)
@@ -413,7 +412,6 @@ def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overw
 
 def run_from_args(args: argparse.Namespace) -> int:
     """``cv2x-marl benchmark``."""
-    from cv2x_marl.io import dumps_json
 
     def split(text: str | None) -> list[str] | None:
         return [s.strip() for s in text.split(",") if s.strip()] if text else None

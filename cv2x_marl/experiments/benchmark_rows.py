@@ -4,7 +4,8 @@ read back and reused (``--rows-from``), the protocol's statistics per task and m
 these names.
 
 Like :mod:`cv2x_marl.experiments.benchmark`, this module imports only the standard library at its top (the CLI
-builds its parser from that module, which imports this one).
+builds its parser from that module, which imports this one): numpy, the statistics and the policy registry are
+imported in the functions that use them.
 """
 
 from __future__ import annotations
@@ -129,7 +130,7 @@ def summarise(rows: list[dict[str, Any]], tasks: Mapping[str, Task]) -> dict[str
     import numpy as np
 
     from cv2x_marl import stats
-    from cv2x_marl.experiments.evaluate import BOOTSTRAP_SEED, interval
+    from cv2x_marl.experiments.protocol import BOOTSTRAP_SEED, interval
 
     out: dict[str, Any] = {"tasks": {}}
     shares: dict[str, dict[str, np.ndarray]] = {}

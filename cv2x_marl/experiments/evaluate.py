@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
+from cv2x_marl.env import tasks
 from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.options import EnvOptions
 from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
 from cv2x_marl.experiments.protocol import (  # noqa: F401 - re-exported: evaluate's names before the split
     BOOTSTRAP_SEED,
@@ -43,8 +45,10 @@ from cv2x_marl.policies.base import Policy
 from cv2x_marl.policies.baselines import Baseline, is_baseline_file, load_baseline, make_baseline_policy
 from cv2x_marl.policies.optimum import uses_team_search
 from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
+from cv2x_marl.policies.traffic import reference_means
 from cv2x_marl.regression.model import PAPER_MODEL
 from cv2x_marl.runs import run_folder
+from cv2x_marl.yamlcore import YAMLError, parse_scalar
 
 #: most per-mover rows (episodes x movers) one evaluation keeps: they stay in memory for the summary
 #: and ``episodes.csv``, about :data:`ROW_BYTES` each, so about 1 GB at the limit
@@ -88,8 +92,6 @@ def parse_seeds(text: str, env_id: str | None) -> tuple[int, ...]:
     """``--seeds``: integers separated by commas or spaces, or ``heldout`` / ``train``: the lists of the
     task whose env id is ``env_id`` (:mod:`cv2x_marl.env.tasks`). Repeated seeds are refused (the
     statistics would count an episode twice)."""
-    from cv2x_marl.env import tasks
-
     word = text.strip()
     if word in ("heldout", "train"):
         task = tasks.task_of_env(env_id) if env_id else None
@@ -139,9 +141,6 @@ def parse_env_options(items: Iterable[str], reserved: dict[str, str] | None = No
         items: the ``key=value`` texts.
         reserved: keys another flag sets, ``{key: flag}``: refused naming the flag.
     """
-    from cv2x_marl.env.options import EnvOptions
-    from cv2x_marl.yamlcore import YAMLError, parse_scalar
-
     names = [f.name for f in dataclasses.fields(EnvOptions)]
     out: dict[str, Any] = {}
     for item in items:
@@ -356,8 +355,6 @@ def evaluate_rows(
     seeds: Sequence[int] | None = None,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """:func:`evaluate`'s summary and its per-mover rows (those of ``episodes.csv``)."""
-    from cv2x_marl.env import tasks
-
     if seeds is not None:
         seeds = [int(s) for s in seeds]
         if not seeds:
@@ -502,8 +499,6 @@ def _episode_rows(
                 optimum_cache[ep] = optimum_utilities(ref_env, ref)
             u_opt = optimum_cache.get(ep)
             if means and ep not in static_cache:
-                from cv2x_marl.policies.traffic import reference_means
-
                 static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
             returns = dict.fromkeys(movers, 0.0)
             last = infos

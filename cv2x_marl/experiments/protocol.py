@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from cv2x_marl import stats
+
 #: the summary keys the protocol adds (``seeds`` given or several runs)
 PROTOCOL_KEYS = (
     "runs",
@@ -63,8 +65,6 @@ def episode_means(rows: Sequence[dict[str, Any]], key: str, runs: int, episodes:
 def interval(scores: np.ndarray) -> tuple[float, list[float]]:
     """The protocol's IQM of ``scores`` [runs, episodes] and its 95 % stratified bootstrap interval
     (:func:`cv2x_marl.stats.bootstrap_ci`, 2000 resamples, generator ``default_rng(BOOTSTRAP_SEED)``)."""
-    from cv2x_marl import stats
-
     point, lo, hi = stats.bootstrap_ci(scores, np.random.default_rng(BOOTSTRAP_SEED))
     return point, [lo, hi]
 
@@ -75,8 +75,6 @@ def protocol_summary(
     """The protocol's statistics over runs x episodes: IQM and 95 % CI of the per-episode utility and
     PRR gains (each the mean over the episode's movers of eq. 17) and, with ``vs_optimum``, of the
     per-episode share of the optimum (the episode's gain over the optimum's gain on it)."""
-    from cv2x_marl import stats
-
     out: dict[str, Any] = {"runs": runs}
     ug = episode_means(rows, "utility_gain", runs, episodes)
     out["iqm_utility_gain"], out["ci95_utility_gain"] = interval(ug)

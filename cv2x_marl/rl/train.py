@@ -22,7 +22,11 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
+from cv2x_marl.env.registry import make_parallel_env
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.extras import require
 from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.train_checks import (  # noqa: F401 - re-exported: train's names before the split
     check_training_config,
@@ -43,6 +47,7 @@ from cv2x_marl.rl.train_config import (  # noqa: F401 - re-exported: the configu
     load_train_config,
     run_settings,
 )
+from cv2x_marl.runs import RunFolder
 
 
 def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = None, layout: Any = None) -> Any:
@@ -60,8 +65,6 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
     algo: Any = PPO
     policy = "MlpPolicy"
     if p.recurrent:
-        from cv2x_marl.extras import require
-
         algo = require("sb3_contrib", "ppo.recurrent (sb3-contrib's RecurrentPPO)").RecurrentPPO
         policy = "MlpLstmPolicy"
         policy_kwargs["lstm_hidden_size"] = p.lstm_units
@@ -88,7 +91,6 @@ def make_ppo(vec: Any, p: PpoConfig, seed: int, tensorboard_log: str | None = No
 
 def make_vec_env(cfg: TrainConfig) -> Any:
     """The agents x copies VecEnv of a training configuration."""
-    from cv2x_marl.env.registry import make_parallel_env
     from cv2x_marl.rl.sb3_vec_env import AgentsVecEnv
 
     env = cfg.env_for_training()
@@ -175,9 +177,6 @@ def _callbacks(
     cfg: TrainConfig, run_dir: Path, n_envs: int, total: int, progress: bool, stop: StopRequest
 ) -> list[Any]:
     from stable_baselines3.common.callbacks import BaseCallback
-
-    from cv2x_marl.experiments.evaluate import evaluate
-    from cv2x_marl.policies.ppo import PpoPolicy
 
     class Checkpoint(BaseCallback):
         """Atomic checkpoints every ``checkpoint_every`` steps (a crash never leaves a half file)."""
@@ -355,9 +354,6 @@ def train(
         cv2x_marl.runs.RunFolderError: the folder is in use, not empty (without ``overwrite`` or
             ``resume``) or not writable.
     """
-    from cv2x_marl.extras import require
-    from cv2x_marl.runs import RunFolder
-
     require("torch", "cv2x-marl train")
     require("stable_baselines3", "cv2x-marl train")
     if not is_int(timesteps) or timesteps < 1:
@@ -437,8 +433,6 @@ def _train(
                 f"{run_dir / 'checkpoints'} (continue with --resume)"
             )
     save_model(model, run_dir / "model.zip")
-    from cv2x_marl.experiments.evaluate import evaluate
-    from cv2x_marl.policies.ppo import PpoPolicy
 
     final = evaluate(cfg.env_id, PpoPolicy(model), cfg.eval_episodes, cfg.eval_seed, None, cfg.env, progress=False)
     record = {

@@ -10,8 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from cv2x_marl.env.mobility_env import check_copies
+from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.train_config import _COPY_OVERHEAD_BYTES, TrainConfig
+from cv2x_marl.sim import memory
+from cv2x_marl.sim.memory import estimate_memory_bytes, format_bytes
 
 
 def probe_env(cfg: TrainConfig) -> Any:
@@ -21,9 +25,6 @@ def probe_env(cfg: TrainConfig) -> Any:
         TrainError: an env argument the env refuses (its message names the argument and the
             allowed values), or copies that cannot share a process.
     """
-    from cv2x_marl.env.mobility_env import check_copies
-    from cv2x_marl.env.registry import make_parallel_env
-
     try:
         env = make_parallel_env(cfg.env_id, **cfg.env_for_training())
         check_copies(env, cfg.copies)
@@ -57,8 +58,6 @@ def estimate_training_memory(cfg: TrainConfig, env: Any) -> dict[str, int]:
     * ``networks``: the policy and value networks' parameters (float32) with their gradients and
       Adam's two moments, plus a mini-batch's activations (forward and backward).
     """
-    from cv2x_marl.sim.memory import estimate_memory_bytes
-
     sim = estimate_memory_bytes(env.config)
     kept = sum(sim.get(k, 0) for k in ("pair_index", "pair_list", "shadowing", "snapshot", "sensing"))
     per_copy = kept + _COPY_OVERHEAD_BYTES
@@ -99,8 +98,6 @@ def check_training_memory(cfg: TrainConfig, env: Any, limit_bytes: int | None = 
         TrainError: the estimate exceeds the limit; the message gives the figures, largest first,
             each with the key that sets it.
     """
-    from cv2x_marl.sim import memory
-
     est = estimate_training_memory(cfg, env)
     checked = (limit_bytes, "limit_bytes") if limit_bytes is not None else memory.memory_limit(est["total"])
     if checked is None or est["total"] <= checked[0]:
@@ -124,8 +121,6 @@ def check_training_memory(cfg: TrainConfig, env: Any, limit_bytes: int | None = 
 
 
 def _gb(n_bytes: float) -> str:
-    from cv2x_marl.sim.memory import format_bytes
-
     return format_bytes(n_bytes)
 
 

@@ -11,8 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from cv2x_marl.checks import as_real, is_int
+from cv2x_marl.env.mobility_env import MobilityEnv
 from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.yamlcore import load_mapping
 
 #: the most env copies a run may ask for (``copies``, ``--copies``): each copy holds its own
 #: simulator state (measured about 0.33 MB on the ``paper`` preset, 14 MB on ``highway``) and is
@@ -183,8 +185,6 @@ def env_arguments(env_id: str) -> tuple[str, ...]:
     ``overrides``) and, for the ``SingleMover`` ids, ``movers`` (fixed to vehicle 0)."""
     import inspect
 
-    from cv2x_marl.env.mobility_env import MobilityEnv
-
     skip = {"self", "config"} | ({"movers"} if env_id.startswith("cv2x/SingleMover") else set())
     return tuple(n for n in inspect.signature(MobilityEnv.__init__).parameters if n not in skip)
 
@@ -197,8 +197,6 @@ def run_settings(path: Path | None) -> dict[str, int]:
     """The ``seed`` and ``timesteps`` a training file names (a run folder's ``train_config.json``
     does), checked; empty for a plain configuration. ``cv2x-marl train --config FILE`` uses them
     when ``--seed`` / ``--timesteps`` are not given, so a shipped run can be trained again as it was."""
-    from cv2x_marl.yamlcore import load_mapping
-
     if path is None:
         return {}
     data = load_mapping(path, "training config", TrainError)
@@ -242,8 +240,6 @@ def read_sections(
     Raises:
         TrainError: an unknown key, or a ``section`` / ``env`` that is not a mapping.
     """
-    from cv2x_marl.yamlcore import load_mapping
-
     data = {} if path is None else load_mapping(path, "training config", TrainError)
     for key in skip:
         data.pop(key, None)

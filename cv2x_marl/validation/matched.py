@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.config import apply_overrides, from_dict, preset
+from cv2x_marl.parallel import map_in_processes
 from cv2x_marl.sim.metrics import CAUSE_CODE
 from cv2x_marl.sim.simulator import Simulator
 from cv2x_marl.validation.mode4_analytical import PAPER_FORMATS
@@ -218,8 +219,6 @@ def simulate_many(
     ``workers > 1`` in that many spawned processes (:func:`cv2x_marl.parallel.map_in_processes`, the
     largest scenes first; each run is independent and seeded, so the results are the same as in one
     process)."""
-    from cv2x_marl.parallel import map_in_processes
-
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     return list(map_in_processes(_simulate_seed_task, list(tasks), workers, cost=_task_cost))
