@@ -60,6 +60,9 @@ bench: install
 
 docs: install
 	$(BIN)/cv2x-marl config --markdown > docs/config.md
+	$(BIN)/python -m cv2x_marl.env.pages docs/envs > /dev/null
+	$(BIN)/python -m cv2x_marl.cli.reference > docs/cli.md
+	$(BIN)/python -m cv2x_marl.cli.reference api > docs/api.md
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .mypy_cache .ruff_cache

@@ -20,13 +20,13 @@ import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from cv2x_marl.extras import require
+
 
 @contextlib.contextmanager
 def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
     """Connect to Ray (``address``) or start an embedded local one; shut it down and remove its
     session files afterwards. Ray's own console output goes to stderr."""
-    from cv2x_marl.extras import require
-
     ray = require("ray", "Ray sweeps and --ray")
     if ray.is_initialized():  # the caller manages Ray
         yield ray

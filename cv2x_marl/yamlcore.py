@@ -41,6 +41,8 @@ from typing import Any
 
 import yaml
 
+from cv2x_marl.io import InputFileError, read_text_limited
+
 __all__ = [
     "MAX_DEPTH",
     "MAX_FILE_BYTES",
@@ -268,8 +270,6 @@ def load_path(path: str | Path, what: str = "configuration file") -> Any:
         ValueError: malformed JSON (``json.JSONDecodeError``) or too deep a JSON document.
         yaml.YAMLError: malformed YAML, a repeated mapping key, or a limit of the YAML document.
     """
-    from cv2x_marl.io import read_text_limited
-
     path = Path(path)
     text = read_text_limited(path, MAX_FILE_BYTES, what)
     return load_json(text) if path.suffix == ".json" else load(text, str(path))
@@ -283,8 +283,6 @@ def load_mapping(path: str | Path, what: str, error: type[Exception] = ValueErro
         what: what the file is, for messages (``training config``, ``baseline file``, ...).
         error: the exception type raised, with a message naming ``what`` and ``path``.
     """
-    from cv2x_marl.io import InputFileError
-
     try:
         data = load_path(path, what)
     except InputFileError as exc:  # the message names the file and the limit

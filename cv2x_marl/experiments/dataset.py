@@ -20,6 +20,7 @@ import cv2x_marl
 from cv2x_marl.config import ConfigError, ScenarioConfig, show_value, to_dict
 from cv2x_marl.experiments.simulate import expected_link_rows, write_parquet
 from cv2x_marl.io import InputFileError, atomic_write, read_text_limited, write_json
+from cv2x_marl.parallel import map_on_ray
 from cv2x_marl.regression import MAX_NSV_CAP, FitData, FitError, TwoDistanceModel, fit_two_distance
 from cv2x_marl.regression.model import MODEL_FILE
 
@@ -216,8 +217,6 @@ def _build_dataset(
     seeds = derive_seeds(seed, runs)
     n_vehicles = cfg.n_slots  # tx / rx are slot numbers
     if ray:
-        from cv2x_marl.parallel import map_on_ray
-
         parts = map_on_ray(_one_run, [(cfg, i, s) for i, s in enumerate(seeds)], address)
     else:
         bar = tqdm(seeds, desc="dataset", unit="run", file=sys.stderr, disable=not progress)

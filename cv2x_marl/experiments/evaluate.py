@@ -9,7 +9,8 @@ The benchmark protocol (docs/benchmark.md): with ``seeds`` given or several poli
 runs of one method), the summary adds the interquartile mean and the 95 % stratified bootstrap
 interval (:mod:`cv2x_marl.stats`) of the per-episode utility and PRR gains (and of the share of the
 ceiling with ``vs_optimum``), pooled over runs x episodes (:data:`PROTOCOL_KEYS`). Without them the
-summary and ``episodes.csv`` are what they always were.
+summary and ``episodes.csv`` are what they always were. The protocol's statistics are
+:mod:`cv2x_marl.experiments.protocol`'s (re-exported here).
 """
 
 from __future__ import annotations
@@ -26,37 +27,34 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
+from cv2x_marl.env import tasks
 from cv2x_marl.env.mobility_env import MobilityEnv
-from cv2x_marl.env.options import POLICY_ROLES, options_with_role
+from cv2x_marl.env.options import POLICY_ROLES, EnvOptions, options_with_role
 from cv2x_marl.env.registry import DEFAULT_ENV_ID, make_parallel_env
+from cv2x_marl.experiments.protocol import (  # noqa: F401 - re-exported: evaluate's names before the split
+    BOOTSTRAP_SEED,
+    PROTOCOL_KEYS,
+    episode_means,
+    format_summary,
+    interval,
+    protocol_summary,
+    team_gain,
+)
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import Policy
 from cv2x_marl.policies.baselines import Baseline, is_baseline_file, load_baseline, make_baseline_policy
 from cv2x_marl.policies.optimum import uses_team_search
 from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
+from cv2x_marl.policies.traffic import reference_means
 from cv2x_marl.regression.model import PAPER_MODEL
 from cv2x_marl.runs import run_folder
+from cv2x_marl.yamlcore import YAMLError, parse_scalar
 
 #: most per-mover rows (episodes x movers) one evaluation keeps: they stay in memory for the summary
 #: and ``episodes.csv``, about :data:`ROW_BYTES` each, so about 1 GB at the limit
 MAX_ROWS = 1_000_000
 #: memory of one per-mover row (a dict of 12 values: 752 bytes measured, rounded up for the summary's arrays)
 ROW_BYTES = 1_000
-#: the summary keys the protocol adds (``seeds`` given or several runs)
-PROTOCOL_KEYS = (
-    "runs",
-    "seeds",
-    "iqm_utility_gain",
-    "ci95_utility_gain",
-    "iqm_prr_gain",
-    "ci95_prr_gain",
-    "iqm_share_of_optimum",
-    "ci95_share_of_optimum",
-    "bootstrap",
-)
-#: the seed of every bootstrap generator (a fresh ``default_rng(BOOTSTRAP_SEED)`` per statistic: the
-#: same scores give the same interval in `evaluate` and `benchmark`)
-BOOTSTRAP_SEED = 0
 #: the largest episode seed ``--seeds`` takes (32-bit, as the CLI's ``--seed``)
 MAX_SEED = 2**32 - 1
 #: env arguments the `evaluate` command sets with its own flags (``--env-option`` refuses them)
@@ -94,8 +92,6 @@ def parse_seeds(text: str, env_id: str | None) -> tuple[int, ...]:
     """``--seeds``: integers separated by commas or spaces, or ``heldout`` / ``train``: the lists of the
     task whose env id is ``env_id`` (:mod:`cv2x_marl.env.tasks`). Repeated seeds are refused (the
     statistics would count an episode twice)."""
-    from cv2x_marl.env import tasks
-
     word = text.strip()
     if word in ("heldout", "train"):
         task = tasks.task_of_env(env_id) if env_id else None
@@ -145,9 +141,6 @@ def parse_env_options(items: Iterable[str], reserved: dict[str, str] | None = No
         items: the ``key=value`` texts.
         reserved: keys another flag sets, ``{key: flag}``: refused naming the flag.
     """
-    from cv2x_marl.env.options import EnvOptions
-    from cv2x_marl.yamlcore import YAMLError, parse_scalar
-
     names = [f.name for f in dataclasses.fields(EnvOptions)]
     out: dict[str, Any] = {}
     for item in items:
@@ -299,7 +292,7 @@ def evaluate(
 
     Args:
         env_id: a registered id; None: the one a ``ppo:PATH`` model was trained on or a baseline
-            file names, else ``cv2x/SingleMover-v2``.
+            file names, else :data:`~cv2x_marl.env.registry.DEFAULT_ENV_ID`.
         policy_spec: a policy name (:func:`~cv2x_marl.policies.registry.make_policy`), ``ppo:PATH``, a baseline
             file (``baselines/NAME.yaml``, :mod:`cv2x_marl.policies.baselines`: its policy, model,
             delta, env id and env options; ``env_kwargs`` override the latter) or a policy object;
@@ -348,10 +341,6 @@ def evaluate_rows(
     seeds: Sequence[int] | None = None,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """:func:`evaluate`'s summary and its per-mover rows (those of ``episodes.csv``)."""
-    from tqdm import tqdm
-
-    from cv2x_marl.env import tasks
-
     if seeds is not None:
         seeds = [int(s) for s in seeds]
         if not seeds:
@@ -359,22 +348,8 @@ def evaluate_rows(
         episodes = len(seeds)
     check_episodes(episodes, 1)  # the count itself; with the env's movers below
     several = isinstance(policy_spec, Sequence) and not isinstance(policy_spec, str)
-    specs: list[str | Policy] = list(policy_spec) if several else [policy_spec]  # type: ignore[arg-type,list-item]
-    if not specs:
-        raise ValueError("--policy: give at least one policy")
-    if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
-        raise ValueError(
-            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
-            f"got {names_of(specs)}"
-        )
-    resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
+    resolved = _resolve_runs(env_id, policy_spec, several, env_kwargs, model_path, delta)
     first = resolved[0]
-    for r in resolved[1:]:
-        if (r.env_id, r.env_kwargs) != (first.env_id, first.env_kwargs):
-            raise ValueError(
-                f"--policy: the runs of one evaluation must share the env; {r.policy} resolves to {r.env_id} "
-                f"{r.env_kwargs}, {first.policy} to {first.env_id} {first.env_kwargs}"
-            )
     env_id = first.env_id or DEFAULT_ENV_ID
     task = tasks.task_of_env(env_id)
     for r in resolved:  # a policy the task cannot run: refused by name before the env is built
@@ -398,67 +373,9 @@ def evaluate_rows(
         params["seeds"] = seeds
     inputs = [p for r in resolved for p in r.inputs]
     with run_folder(out_dir, "evaluate", overwrite=overwrite, parameters=params, inputs=inputs):
-        zero = np.zeros(2, dtype=np.float32)
-        rows: list[dict[str, Any]] = []
-        optimum_cache: dict[int, np.ndarray] = {}
-        # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
-        means = bool(getattr(env.options, "episode_metrics", False))
-        static_cache: dict[int, tuple[float, float]] = {}
+        means = bool(getattr(env.options, "episode_metrics", False))  # episode metrics (cv2x/Traffic-v0)
         t0 = time.perf_counter()
-        steps = 0
-        for run, policy in enumerate(policies):
-            ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
-            bar = tqdm(ep_seeds, total=episodes, desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
-            for ep, ep_seed in enumerate(bar):
-                obs, infos = env.reset(seed=ep_seed)
-                policy.reset(ep_seed)
-                if ref is not None and ep not in optimum_cache:
-                    if ref_env is not env:  # the same episode in the env the ceiling acts in
-                        ref_env.reset(seed=ep_seed)
-                    optimum_cache[ep] = optimum_utilities(ref_env, ref)
-                u_opt = optimum_cache.get(ep)
-                if means and ep not in static_cache:
-                    from cv2x_marl.policies.traffic import reference_means
-
-                    static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
-                returns = dict.fromkeys(movers, 0.0)
-                last = infos
-                while env.agents:
-                    acts = policy.act({a: obs[a] for a in movers})
-                    full = {a: acts.get(a, zero) for a in env.agents}
-                    obs, rew, _, _, last = env.step(full)
-                    steps += 1
-                    for a in movers:
-                        returns[a] += rew[a]
-                for a in movers:
-                    info = last[a]
-                    row: dict[str, Any] = {"run": run} if several else {}
-                    u_start, u_end, p_start, p_end = (
-                        info["utility_start"],
-                        info["utility"],
-                        info["prr_start"],
-                        info["prr"],
-                    )
-                    if means:  # the episode's means; the start: static's means on the same episode
-                        (u_start, p_start), u_end, p_end = static_cache[ep], info["utility_mean"], info["prr_mean"]
-                    row.update(
-                        {
-                            "episode": ep,
-                            "seed": ep_seed,
-                            "agent": a,
-                            "utility_start": u_start,
-                            "utility_end": u_end,
-                            "prr_start": p_start,
-                            "prr_end": p_end,
-                            "jain_end": info["jain"],
-                            "return": returns[a],
-                        }
-                    )
-                    if means:  # Jain's index of the mover's links, mean over the episode's periods
-                        row["jain_mean"] = info["jain_mean"]
-                    if u_opt is not None:
-                        row["utility_optimum"] = float(u_opt[env.agent_index[a]])
-                    rows.append(row)
+        rows, steps = _episode_rows(env, policies, movers, episodes, seed, seeds, several, ref, ref_env, progress)
         runtime = time.perf_counter() - t0
         u0 = np.array([r["utility_start"] for r in rows])
         u1 = np.array([r["utility_end"] for r in rows])
@@ -496,126 +413,147 @@ def evaluate_rows(
             if means:
                 summary["gains_of"] = "each mover's episode means against static's on the same episode"
         if vs_optimum:
-            uo = np.array([r["utility_optimum"] for r in rows])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
-            if team:
-                og = team_gain(rows, "utility_start", "utility_optimum")
-            for row, g in zip(rows, og, strict=True):
-                row["optimum_gain"] = float(g)
-            summary["optimum_utility_gain"] = float(np.nanmean(og))
-            summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
-            summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+            _add_optimum_gains(summary, rows, u0, u1, team)
         if protocol:
             summary.update(protocol_summary(rows, len(policies), episodes, vs_optimum))
             summary["seeds"] = seeds
         if out_dir is not None:
-            out_dir = Path(out_dir)
-            fields = [k for k in rows[0] if k != "optimum_gain"]
-
-            def write(tmp: Path) -> None:
-                with tmp.open("w", newline="") as fh:
-                    w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-                    w.writeheader()
-                    w.writerows(rows)
-
-            atomic_write(out_dir / "episodes.csv", write)
-            write_json(out_dir / "summary.json", summary)
+            _write_episodes(Path(out_dir), rows, summary)
         return summary, rows
 
 
-def team_gain(rows: Sequence[dict[str, Any]], start: str, end: str) -> np.ndarray:
-    """[rows] the gain of the team in each row's episode (the same value on every row of it): eq. 17 of
-    the mean over the episode's movers, ``(mean(end) - mean(start)) / |mean(start)|`` (NaN when the mean
-    start is 0). With the utility per target receiver this is the gain of the Cooperative task's team
-    objective J (:mod:`cv2x_marl.env.team_search`); with PRRs, of the network mean PRR."""
-    groups: dict[tuple[int, int], list[int]] = {}
-    for k, r in enumerate(rows):
-        groups.setdefault((int(r.get("run", 0)), int(r["episode"])), []).append(k)
-    out = np.full(len(rows), np.nan)
-    for index in groups.values():
-        j0 = float(np.mean([rows[k][start] for k in index]))
-        j1 = float(np.mean([rows[k][end] for k in index]))
-        if j0 != 0:
-            out[index] = (j1 - j0) / abs(j0)
-    return out
+def _resolve_runs(
+    env_id: str | None,
+    policy_spec: str | Policy | Sequence[str | Policy],
+    several: bool,
+    env_kwargs: dict[str, Any] | None,
+    model_path: str,
+    delta: float,
+) -> list[_Resolved]:
+    """:func:`evaluate_rows`' policy specs resolved (:func:`_resolve`); several must be ``ppo:PATH`` runs of one
+    method on one env."""
+    specs: list[str | Policy] = list(policy_spec) if several else [policy_spec]  # type: ignore[arg-type,list-item]
+    if not specs:
+        raise ValueError("--policy: give at least one policy")
+    if several and not all(isinstance(s, str) and s.startswith(PPO_PREFIX) for s in specs):
+        raise ValueError(
+            "--policy: several policies are the training runs of one learned method, each ppo:PATH; "
+            f"got {names_of(specs)}"
+        )
+    resolved = [_resolve(env_id, s, dict(env_kwargs or {}), model_path, delta) for s in specs]
+    first = resolved[0]
+    for r in resolved[1:]:
+        if (r.env_id, r.env_kwargs) != (first.env_id, first.env_kwargs):
+            raise ValueError(
+                f"--policy: the runs of one evaluation must share the env; {r.policy} resolves to {r.env_id} "
+                f"{r.env_kwargs}, {first.policy} to {first.env_id} {first.env_kwargs}"
+            )
+    return resolved
 
 
-def episode_means(rows: Sequence[dict[str, Any]], key: str, runs: int, episodes: int) -> np.ndarray:
-    """[runs, episodes] the mean of ``key`` over each episode's movers (NaN values left out; NaN when
-    every mover's is). Rows without a ``run`` are run 0."""
-    total = np.zeros((runs, episodes))
-    count = np.zeros((runs, episodes))
-    for r in rows:
-        v = float(r[key])
-        if np.isfinite(v):
-            i, j = int(r.get("run", 0)), int(r["episode"])
-            total[i, j] += v
-            count[i, j] += 1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / count, np.nan)
+def _episode_rows(
+    env: MobilityEnv,
+    policies: list[Policy],
+    movers: list[str],
+    episodes: int,
+    seed: int,
+    seeds: Sequence[int] | None,
+    several: bool,
+    ref: Any,
+    ref_env: MobilityEnv,
+    progress: bool,
+) -> tuple[list[dict[str, Any]], int]:
+    """Every policy's episodes on ``env`` (:func:`evaluate_rows`): the per-mover rows and the env steps taken."""
+    from tqdm import tqdm
+
+    zero = np.zeros(2, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    optimum_cache: dict[int, np.ndarray] = {}
+    # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
+    means = bool(getattr(env.options, "episode_metrics", False))
+    static_cache: dict[int, tuple[float, float]] = {}
+    steps = 0
+    for run, policy in enumerate(policies):
+        ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
+        bar = tqdm(ep_seeds, total=episodes, desc=policy.name, unit="ep", file=sys.stderr, disable=not progress)
+        for ep, ep_seed in enumerate(bar):
+            obs, infos = env.reset(seed=ep_seed)
+            policy.reset(ep_seed)
+            if ref is not None and ep not in optimum_cache:
+                if ref_env is not env:  # the same episode in the env the ceiling acts in
+                    ref_env.reset(seed=ep_seed)
+                optimum_cache[ep] = optimum_utilities(ref_env, ref)
+            u_opt = optimum_cache.get(ep)
+            if means and ep not in static_cache:
+                static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
+            returns = dict.fromkeys(movers, 0.0)
+            last = infos
+            while env.agents:
+                acts = policy.act({a: obs[a] for a in movers})
+                full = {a: acts.get(a, zero) for a in env.agents}
+                obs, rew, _, _, last = env.step(full)
+                steps += 1
+                for a in movers:
+                    returns[a] += rew[a]
+            for a in movers:
+                row: dict[str, Any] = {"run": run} if several else {}
+                row.update(_mover_row(last[a], ep, ep_seed, a, returns[a], static_cache.get(ep) if means else None))
+                if u_opt is not None:
+                    row["utility_optimum"] = float(u_opt[env.agent_index[a]])
+                rows.append(row)
+    return rows, steps
 
 
-def interval(scores: np.ndarray) -> tuple[float, list[float]]:
-    """The protocol's IQM of ``scores`` [runs, episodes] and its 95 % stratified bootstrap interval
-    (:func:`cv2x_marl.stats.bootstrap_ci`, 2000 resamples, generator ``default_rng(BOOTSTRAP_SEED)``)."""
-    from cv2x_marl import stats
-
-    point, lo, hi = stats.bootstrap_ci(scores, np.random.default_rng(BOOTSTRAP_SEED))
-    return point, [lo, hi]
-
-
-def protocol_summary(
-    rows: Sequence[dict[str, Any]], runs: int, episodes: int, vs_optimum: bool = False
+def _mover_row(
+    info: dict[str, Any], ep: int, ep_seed: int, agent: str, ret: float, static_means: tuple[float, float] | None
 ) -> dict[str, Any]:
-    """The protocol's statistics over runs x episodes: IQM and 95 % CI of the per-episode utility and
-    PRR gains (each the mean over the episode's movers of eq. 17) and, with ``vs_optimum``, of the
-    per-episode share of the optimum (the episode's gain over the optimum's gain on it)."""
-    from cv2x_marl import stats
-
-    out: dict[str, Any] = {"runs": runs}
-    ug = episode_means(rows, "utility_gain", runs, episodes)
-    out["iqm_utility_gain"], out["ci95_utility_gain"] = interval(ug)
-    out["iqm_prr_gain"], out["ci95_prr_gain"] = interval(episode_means(rows, "prr_gain", runs, episodes))
-    if vs_optimum:
-        og = episode_means(rows, "optimum_gain", runs, episodes)[:1]  # the same on every run
-        with np.errstate(invalid="ignore", divide="ignore"):
-            share = np.where(og != 0, ug / og, np.nan)
-        out["iqm_share_of_optimum"], out["ci95_share_of_optimum"] = interval(share)
-    out["bootstrap"] = {
-        "statistic": "iqm",
-        "resamples": stats.N_RESAMPLES,
-        "level": stats.LEVEL,
-        "seed": BOOTSTRAP_SEED,
-        "resampled": "runs and episodes (crossed), docs/benchmark.md",
+    """One mover's row of an episode from its last info; ``static_means``: with episode metrics, static's
+    utility and PRR means on the same episode (the start), None without."""
+    u_start, u_end, p_start, p_end = info["utility_start"], info["utility"], info["prr_start"], info["prr"]
+    if static_means is not None:  # the episode's means; the start: static's means on the same episode
+        (u_start, p_start), u_end, p_end = static_means, info["utility_mean"], info["prr_mean"]
+    row: dict[str, Any] = {
+        "episode": ep,
+        "seed": ep_seed,
+        "agent": agent,
+        "utility_start": u_start,
+        "utility_end": u_end,
+        "prr_start": p_start,
+        "prr_end": p_end,
+        "jain_end": info["jain"],
+        "return": ret,
     }
-    return out
+    if static_means is not None:  # Jain's index of the mover's links, mean over the episode's periods
+        row["jain_mean"] = info["jain_mean"]
+    return row
 
 
-def format_summary(summary: dict[str, Any], label: str | None = None) -> str:
-    """The summary as `cv2x-marl evaluate` prints it (``label``: the policy as given; default the summary's)."""
-    policy = summary["policy"]
-    label = label or (", ".join(policy) if isinstance(policy, list) else str(policy))
-    share = f", {summary['share_of_optimum']:.1%} of the optimum's gain" if "share_of_optimum" in summary else ""
-    text = (
-        f"{label} on {summary['env']}, {summary['episodes']} episodes x "
-        f"{summary['movers_per_episode']} movers: "
-        f"utility gain {summary['mean_utility_gain']:+.1%}, PRR gain {summary['mean_prr_gain']:+.1%}, "
-        f"effectiveness {summary['effectiveness']:.1%}, Jain {summary['jain_fairness']:.3f}, "
-        f"return {summary['mean_return']:.1f}{share}"
-    )
-    if "iqm_utility_gain" in summary:
-        parts = [
-            ("utility gain", "utility_gain"),
-            ("PRR gain", "prr_gain"),
-            ("share of the optimum", "share_of_optimum"),
-        ]
-        sign = {"share_of_optimum": ""}
-        shown = []
-        for name, key in parts:
-            if "iqm_" + key in summary:
-                f = "{:" + sign.get(key, "+") + ".1%}"
-                lo, hi = summary["ci95_" + key]
-                shown.append(f"{name} {f.format(summary['iqm_' + key])} [{f.format(lo)}, {f.format(hi)}]")
-        text += f"\nIQM over {summary['runs']} run(s) x {summary['episodes']} episodes (95% CI): " + ", ".join(shown)
-    return text
+def _add_optimum_gains(
+    summary: dict[str, Any], rows: list[dict[str, Any]], u0: np.ndarray, u1: np.ndarray, team: bool
+) -> None:
+    """``vs_optimum``: each row's ``optimum_gain`` and the summary's optimum utility gain, share of the optimum and
+    the count of rows that beat it."""
+    uo = np.array([r["utility_optimum"] for r in rows])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        og = np.where(u0 != 0, (uo - u0) / np.abs(u0), np.nan)
+    if team:
+        og = team_gain(rows, "utility_start", "utility_optimum")
+    for row, g in zip(rows, og, strict=True):
+        row["optimum_gain"] = float(g)
+    summary["optimum_utility_gain"] = float(np.nanmean(og))
+    summary["share_of_optimum"] = summary["mean_utility_gain"] / summary["optimum_utility_gain"]
+    summary["beats_optimum"] = int(np.sum(u1 > uo + 1e-9 * np.abs(uo)))
+
+
+def _write_episodes(out_dir: Path, rows: list[dict[str, Any]], summary: dict[str, Any]) -> None:
+    """``episodes.csv`` (the rows, without ``optimum_gain``) and ``summary.json`` in ``out_dir``."""
+    fields = [k for k in rows[0] if k != "optimum_gain"]
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+
+    atomic_write(out_dir / "episodes.csv", write)
+    write_json(out_dir / "summary.json", summary)

@@ -17,16 +17,16 @@ import warnings
 
 import numpy as np
 
+from cv2x_marl.config import apply_overrides, preset
+from cv2x_marl.env.registry import ENV_IDS, make_parallel_env
+from cv2x_marl.env.tasks import TASKS
+from cv2x_marl.policies.registry import make_policy
+from cv2x_marl.sim.simulator import Simulator
+
 
 def warm(verbose: bool = True) -> float:
     """Run the package's compiled paths once; returns the seconds it took."""
     import gymnasium
-
-    from cv2x_marl.config import apply_overrides, preset
-    from cv2x_marl.env.registry import ENV_IDS, make_parallel_env
-    from cv2x_marl.env.tasks import TASKS
-    from cv2x_marl.policies.registry import make_policy
-    from cv2x_marl.sim.simulator import Simulator
 
     t0 = time.perf_counter()
 

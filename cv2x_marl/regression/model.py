@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cv2x_marl.config import show_value
 from cv2x_marl.io import InputFileError, read_text_limited, strict, write_json
+from cv2x_marl.yamlcore import load_json
 
 FloatArray = NDArray[np.float64]
 SCHEMA_VERSION = 1
@@ -219,8 +220,6 @@ class TwoDistanceModel:
     @classmethod
     def load(cls, path: str | Path) -> TwoDistanceModel:
         """Read a model file written by :meth:`save` (or ``cv2x-marl fit``)."""
-        from cv2x_marl.yamlcore import load_json
-
         path = Path(path)
         try:
             data = load_json(read_text_limited(path, MAX_MODEL_BYTES, "model file"))

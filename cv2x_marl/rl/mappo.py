@@ -45,9 +45,18 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
+from cv2x_marl.env.mobility_env import check_copies
+from cv2x_marl.env.registry import make_parallel_env
+from cv2x_marl.env.seeds import training_pool
+from cv2x_marl.experiments.evaluate import evaluate
+from cv2x_marl.extras import require
+from cv2x_marl.io import atomic_write, write_json
+from cv2x_marl.policies.base import BatchPolicy
 from cv2x_marl.policies.mappo import MODEL_FORMAT
 from cv2x_marl.rl.errors import TrainError
-from cv2x_marl.rl.mappo_config import MappoConfig
+from cv2x_marl.rl.mappo_config import MappoConfig, load_mappo_config
+from cv2x_marl.rl.train import StopRequest, TrainingInterrupted, check_resume_config, run_settings, write_eval_rows
+from cv2x_marl.runs import RunFolder
 
 #: the named random streams of a run, spawned from ``SeedSequence(seed)`` in this order
 STREAMS = ("torch", "episodes", "minibatches")
@@ -94,9 +103,6 @@ class Mappo:
         from torchrl.modules import ProbabilisticActor, TanhNormal
         from torchrl.objectives import ClipPPOLoss
 
-        from cv2x_marl.env.mobility_env import check_copies
-        from cv2x_marl.env.registry import make_parallel_env
-        from cv2x_marl.env.seeds import training_pool
         from cv2x_marl.policies.encoders import layout_spec
         from cv2x_marl.policies.mappo_nets import SharedActor, StateCritic
 
@@ -354,8 +360,6 @@ class Mappo:
 
 def build_mappo(cfg: MappoConfig, seed: int) -> Mappo:
     """The run's envs and networks, before any folder is touched (bad env arguments raise :class:`TrainError`)."""
-    from cv2x_marl.extras import require
-
     for module in ("torch", "tensordict", "torchrl"):
         require(module, "cv2x-marl train with algo: mappo")
     if not is_int(seed) or seed < 0:
@@ -389,9 +393,6 @@ def train_mappo(
         cv2x_marl.runs.RunFolderError: the folder is in use, or not empty without ``overwrite`` or ``resume``.
     """
     import torch
-
-    from cv2x_marl.rl.train import check_resume_config
-    from cv2x_marl.runs import RunFolder
 
     if not is_int(timesteps) or timesteps < 1:
         raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
@@ -438,11 +439,6 @@ def _train_mappo(
     progress: bool,
 ) -> dict[str, Any]:
     import torch
-
-    from cv2x_marl.experiments.evaluate import evaluate
-    from cv2x_marl.io import atomic_write, write_json
-    from cv2x_marl.policies.base import BatchPolicy
-    from cv2x_marl.rl.train import StopRequest, TrainingInterrupted, write_eval_rows
 
     write_json(run_dir / "train_config.json", resolved)
     done, rows = run.load_training_state(state) if state is not None else (0, [])
@@ -528,9 +524,6 @@ def _train_mappo(
 def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
     """``cv2x-marl train`` for a MAPPO config (``--algo mappo`` or ``algo: mappo``): ``--config``, ``--env``,
     ``--copies``, ``--timesteps`` and ``--seed`` (else the file's, as for PPO), ``--out``, ``--overwrite``."""
-    from cv2x_marl.rl.mappo_config import load_mappo_config
-    from cv2x_marl.rl.train import run_settings
-
     cfg = load_mappo_config(args.config, env_id=args.env, copies=args.copies)
     from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", default_timesteps)

@@ -27,6 +27,8 @@ from typing import Any
 
 from cv2x_marl.checks import is_int
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.train_config import MAX_COPIES, PPO_REALS, check_reals, env_arguments, read_sections, with_cli_values
+from cv2x_marl.yamlcore import load_mapping
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
 ALGOS = ("ppo", "mappo")
@@ -89,8 +91,6 @@ class MappoSettings:
     encoder_units: int = 64
 
     def __post_init__(self) -> None:
-        from cv2x_marl.rl.train_config import PPO_REALS, check_reals
-
         check_reals(self, "mappo", {**PPO_REALS, "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]")})
         for name in ("n_epochs", "minibatch_steps", "encoder_units"):
             object.__setattr__(self, name, _count(f"mappo.{name}", getattr(self, name)))
@@ -122,8 +122,6 @@ class MappoConfig:
     algo: str = "mappo"
 
     def __post_init__(self) -> None:
-        from cv2x_marl.rl.train import MAX_COPIES, env_arguments
-
         if self.algo != "mappo":
             raise TrainError(f"algo must be 'mappo' in a MAPPO config, got {self.algo!r}")
         if self.env_id not in MAPPO_ENV_IDS:
@@ -167,8 +165,6 @@ def config_algo(path: Path | None, cli_algo: str | None) -> str:
     Raises:
         TrainError: an algorithm not in :data:`ALGOS`, or ``--algo`` and the file naming different ones.
     """
-    from cv2x_marl.yamlcore import load_mapping
-
     file_algo = None if path is None else load_mapping(path, "training config", TrainError).get("algo")
     for where, algo in (("--algo", cli_algo), (f"{path}: algo", file_algo)):
         if algo is not None and algo not in ALGOS:
@@ -185,8 +181,6 @@ def load_mappo_config(path: Path | None, env_id: str | None = None, copies: int 
     Raises:
         TrainError: unknown keys (named, with the allowed ones) or values out of range.
     """
-    from cv2x_marl.rl.train_config import read_sections, with_cli_values
-
     data, raw, env = read_sections(
         path, ("seed", "timesteps"), MappoConfig, "MAPPO config", "mappo", MappoSettings, "MAPPO"
     )

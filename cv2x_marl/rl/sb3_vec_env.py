@@ -34,6 +34,8 @@ except ImportError as _exc:  # the train extra is not installed
 
 from cv2x_marl.env.mobility_env import INFO_KEYS, MobilityEnv, check_copies
 from cv2x_marl.env.mover_batch import BATCH_ATTRIBUTES, MoverBatch, batch_problem, refuse_episode_method
+from cv2x_marl.env.seeds import training_pool
+from cv2x_marl.rng import derive_seeds
 
 
 class AgentsVecEnv(VecEnv):
@@ -111,12 +113,8 @@ class AgentsVecEnv(VecEnv):
 
     def reset(self) -> VecEnvObs:
         if self.envs[0].start_pool and self._pool is None:  # the env option: the protocol's training seeds
-            from cv2x_marl.env.seeds import training_pool
-
             self._pool = [int(s) for s in training_pool(self.envs[0].start_pool)]
         elif self.start_pool is not None and (self._pool is None or self._seeds[0] is not None):
-            from cv2x_marl.rng import derive_seeds
-
             base = self._seeds[0]
             if base is None:
                 base = int(np.random.SeedSequence().generate_state(1)[0])

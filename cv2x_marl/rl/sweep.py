@@ -25,10 +25,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.parallel import ray_session
+from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.rl.errors import TrainError
-from cv2x_marl.rl.train import PpoConfig, TrainConfig
+from cv2x_marl.rl.train import PpoConfig, TrainConfig, check_training_config, train
+from cv2x_marl.runs import RunFolder
+from cv2x_marl.yamlcore import YAMLError, parse_scalar
 
 #: held-out metrics of a trial (from :func:`cv2x_marl.experiments.evaluate.evaluate`)
 METRICS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", "share_of_optimum")
@@ -43,8 +47,6 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
     Raises:
         TrainError: a malformed item, an unknown key or an empty value list, naming it.
     """
-    from cv2x_marl.yamlcore import YAMLError, parse_scalar
-
     top = {f.name for f in dataclasses.fields(TrainConfig)} - {"ppo", "env", "env_id"}
     ppo = {f.name for f in dataclasses.fields(PpoConfig)}
     grid: dict[str, list[Any]] = {}
@@ -97,10 +99,6 @@ def _trial_name(seed: int, point: dict[str, Any]) -> str:
 
 def _trial(spec: dict[str, Any]) -> dict[str, Any]:
     """One trial: train, then evaluate the model on held-out episodes. Runs in a Ray worker."""
-    from cv2x_marl.experiments.evaluate import evaluate
-    from cv2x_marl.policies.ppo import PpoPolicy
-    from cv2x_marl.rl.train import train
-
     cfg: TrainConfig = spec["cfg"]
     run_dir = Path(spec["run_dir"])
     t0 = time.perf_counter()
@@ -165,15 +163,12 @@ def run_sweep(
         SweepInterrupted: Tune stopped before every trial finished; Ctrl-C and SIGTERM raise
             KeyboardInterrupt at once. Either way the sweep folder is rolled back and nothing is plotted.
     """
-    from cv2x_marl.runs import RunFolder
-
     if not seeds:
         raise TrainError("--seeds: give at least one seed")
     if len(set(seeds)) != len(seeds):
         raise TrainError(f"--seeds: repeated seed in {list(seeds)}")
     points = grid_points(grid)
     configs = [apply_point(base, p) for p in points]  # every grid value validated before Ray starts
-    from cv2x_marl.rl.train import check_training_config
 
     for point, cfg in zip(points, configs, strict=True):  # env arguments, SB3 rules, memory: before the folder
         try:

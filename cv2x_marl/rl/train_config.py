@@ -11,8 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from cv2x_marl.checks import as_real, is_int
+from cv2x_marl.env.options import option_names
 from cv2x_marl.env.registry import ENV_IDS
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.yamlcore import load_mapping
 
 #: the most env copies a run may ask for (``copies``, ``--copies``): each copy holds its own
 #: simulator state (measured about 0.33 MB on the ``paper`` preset, 14 MB on ``highway``) and is
@@ -181,8 +183,6 @@ def env_arguments(env_id: str) -> tuple[str, ...]:
     """The keyword arguments of :class:`~cv2x_marl.env.mobility_env.MobilityEnv` a training
     config's ``env`` may set: all but ``config`` (a Python object; use ``preset`` and
     ``overrides``) and, for the ``SingleMover`` ids, ``movers`` (fixed to vehicle 0)."""
-    from cv2x_marl.env.options import option_names
-
     skip = {"config"} | ({"movers"} if env_id.startswith("cv2x/SingleMover") else set())
     return tuple(n for n in option_names() if n not in skip)
 
@@ -195,8 +195,6 @@ def run_settings(path: Path | None) -> dict[str, int]:
     """The ``seed`` and ``timesteps`` a training file names (a run folder's ``train_config.json``
     does), checked; empty for a plain configuration. ``cv2x-marl train --config FILE`` uses them
     when ``--seed`` / ``--timesteps`` are not given, so a shipped run can be trained again as it was."""
-    from cv2x_marl.yamlcore import load_mapping
-
     if path is None:
         return {}
     data = load_mapping(path, "training config", TrainError)
@@ -240,8 +238,6 @@ def read_sections(
     Raises:
         TrainError: an unknown key, or a ``section`` / ``env`` that is not a mapping.
     """
-    from cv2x_marl.yamlcore import load_mapping
-
     data = {} if path is None else load_mapping(path, "training config", TrainError)
     for key in skip:
         data.pop(key, None)

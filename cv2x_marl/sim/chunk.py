@@ -206,25 +206,12 @@ class ChunkRunner:
         n_links = rx.shape[0]
 
         need_triples = cols is not None or cfg.link.model == "rayleigh"
+        rep: IntArray | None = None
+        partner: IntArray | None = None
         if need_triples:
             rep, partner = self.group_terms(tx, rx, active, sched.resource)  # co-channel
         model = cfg.link.model
-        if cfg.link.interference == "independent":  # the analytical model's eq. 14 (config: per_table, no fading)
-            p0 = self.curve.success(snr_db)
-            rep_i, partner_i = self.group_terms(tx, rx, active, sched.resource)
-            i_each_mw = self._mean_power_lookup(geo, rx[rep_i], partner_i)
-            p = independent_interference_success(p0, self.curve.success, s_mw, i_each_mw, rep_i, self.noise_mw)
-        elif model == "per_table":
-            p = self.curve.success(sinr_db)
-            p0 = self.curve.success(snr_db)
-        elif model == "threshold":
-            p = link.threshold_success(sinr_db, cfg.link.sinr_threshold_db)
-            p0 = link.threshold_success(snr_db, cfg.link.sinr_threshold_db)
-        else:
-            mean_s = db_to_linear(geo.mean_rx_dbm[sel])
-            mean_i = self._mean_power_lookup(geo, rx[rep], partner)
-            p = link.rayleigh_success(mean_s, self.noise_mw, mean_i, rep, cfg.link.sinr_threshold_db)
-            p0 = link.rayleigh_success(mean_s, self.noise_mw, np.empty(0), rep[:0], cfg.link.sinr_threshold_db)
+        p, p0 = self._success(geo, sel, rx, tx, active, sched, s_mw, sinr_db, snr_db, rep, partner)
         u = self.link_rng.random(n_links)
         if model == "rayleigh":
             theta = cfg.link.sinr_threshold_db
@@ -262,31 +249,92 @@ class ChunkRunner:
         if acc is not None:
             acc.add(tx, geo.distance_m[sel], p, outcome, cause, int(active.sum()))
         if cols is not None:
-            rng_i = cfg.metrics.interferer_range_m
-            if cfg.metrics.nsv_scope == "concurrent":  # every transmitter of the subframe, any subchannel
-                rep, partner = self.group_terms(tx, rx, active, slot)
-            dpart = displacement_m(self.config, self.road, geo.positions_m[rx[rep]], geo.positions_m[partner])
-            dist_i = np.hypot(dpart[:, 0], dpart[:, 1])
-            near = dist_i <= rng_i
-            nsv = np.bincount(rep[near], minlength=n_links)
-            l_m = np.full(n_links, rng_i)
-            np.minimum.at(l_m, rep[near], dist_i[near])
-            period_start = subframe - lo
-            cols["tx"].append(tx.astype(np.int32))
-            cols["rx"].append(rx.astype(np.int32))
-            cols["subframe"].append(period_start + slot[tx])
-            cols["subchannel"].append(sched.subchannel[tx].astype(np.int16))
-            cols["distance_m"].append(geo.distance_m[sel])
-            cols["nsv"].append(nsv.astype(np.int16))
-            cols["interferer_distance_m"].append(l_m)
-            cols["sinr_db"].append(sinr_db)
-            cols["rx_power_dbm"].append(rx_dbm)
-            cols["p_success"].append(p)
-            cols["outcome"].append(outcome)
-            cols["cause"].append(cause)
-            cols["los"].append(geo.los[sel])
-            cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
+            assert rep is not None and partner is not None  # need_triples
+            links = (tx, rx, sinr_db, rx_dbm, p, outcome, cause)
+            self._append_columns(cols, geo, sel, active, sched, subframe - lo, rep, partner, links)
         return tx, rx, p, cause
+
+    def _success(
+        self,
+        geo: Geometry,
+        sel: NDArray[np.bool_],
+        rx: IntArray,
+        tx: IntArray,
+        active: NDArray[np.bool_],
+        sched: SpsScheduler,
+        s_mw: FloatArray,
+        sinr_db: FloatArray,
+        snr_db: FloatArray,
+        rep: IntArray | None,
+        partner: IntArray | None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`run`'s success probabilities ``P`` (at the SINR) and ``P0`` (at the SNR, no interference) of the
+        chunk's links under ``link.model`` and ``link.interference``; ``rep``, ``partner``: the co-channel terms
+        (:meth:`group_terms`; needed by the rayleigh model)."""
+        cfg = self.config
+        model = cfg.link.model
+        if cfg.link.interference == "independent":  # the analytical model's eq. 14 (config: per_table, no fading)
+            p0 = self.curve.success(snr_db)
+            rep_i, partner_i = self.group_terms(tx, rx, active, sched.resource)
+            i_each_mw = self._mean_power_lookup(geo, rx[rep_i], partner_i)
+            p = independent_interference_success(p0, self.curve.success, s_mw, i_each_mw, rep_i, self.noise_mw)
+        elif model == "per_table":
+            p = self.curve.success(sinr_db)
+            p0 = self.curve.success(snr_db)
+        elif model == "threshold":
+            p = link.threshold_success(sinr_db, cfg.link.sinr_threshold_db)
+            p0 = link.threshold_success(snr_db, cfg.link.sinr_threshold_db)
+        else:
+            assert rep is not None and partner is not None  # need_triples
+            mean_s = db_to_linear(geo.mean_rx_dbm[sel])
+            mean_i = self._mean_power_lookup(geo, rx[rep], partner)
+            p = link.rayleigh_success(mean_s, self.noise_mw, mean_i, rep, cfg.link.sinr_threshold_db)
+            p0 = link.rayleigh_success(mean_s, self.noise_mw, np.empty(0), rep[:0], cfg.link.sinr_threshold_db)
+        return p, p0
+
+    def _append_columns(
+        self,
+        cols: dict[str, list[np.ndarray]],
+        geo: Geometry,
+        sel: NDArray[np.bool_],
+        active: NDArray[np.bool_],
+        sched: SpsScheduler,
+        period_start: int,
+        rep: IntArray,
+        partner: IntArray,
+        links: tuple[IntArray, IntArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.int8]],
+    ) -> None:
+        """Append the chunk's links to the links table's columns (``metrics.record_links``): ``links`` is
+        ``(tx, rx, sinr_db, rx_power_dbm, p_success, outcome, cause)``, ``rep`` / ``partner`` the co-channel terms
+        (the NSV and the main interferer's distance; replaced by the subframe's with ``metrics.nsv_scope``
+        concurrent), ``period_start`` the absolute subframe of the period's slot 0."""
+        cfg = self.config
+        tx, rx, sinr_db, rx_dbm, p, outcome, cause = links
+        slot = sched.slot
+        n_links = rx.shape[0]
+        rng_i = cfg.metrics.interferer_range_m
+        if cfg.metrics.nsv_scope == "concurrent":  # every transmitter of the subframe, any subchannel
+            rep, partner = self.group_terms(tx, rx, active, slot)
+        dpart = displacement_m(self.config, self.road, geo.positions_m[rx[rep]], geo.positions_m[partner])
+        dist_i = np.hypot(dpart[:, 0], dpart[:, 1])
+        near = dist_i <= rng_i
+        nsv = np.bincount(rep[near], minlength=n_links)
+        l_m = np.full(n_links, rng_i)
+        np.minimum.at(l_m, rep[near], dist_i[near])
+        cols["tx"].append(tx.astype(np.int32))
+        cols["rx"].append(rx.astype(np.int32))
+        cols["subframe"].append(period_start + slot[tx])
+        cols["subchannel"].append(sched.subchannel[tx].astype(np.int16))
+        cols["distance_m"].append(geo.distance_m[sel])
+        cols["nsv"].append(nsv.astype(np.int16))
+        cols["interferer_distance_m"].append(l_m)
+        cols["sinr_db"].append(sinr_db)
+        cols["rx_power_dbm"].append(rx_dbm)
+        cols["p_success"].append(p)
+        cols["outcome"].append(outcome)
+        cols["cause"].append(cause)
+        cols["los"].append(geo.los[sel])
+        cols["doppler_hz"].append(channel.doppler_hz(cfg.radio.carrier_hz, geo.rel_speed_mps[sel]))
 
     def _run_compiled(
         self, geo: Geometry, sched: SpsScheduler, active: NDArray[np.bool_], acc: PrrAccumulator | None
@@ -323,7 +371,7 @@ class ChunkRunner:
     def inband_leakage(self, total: NDArray[Any]) -> FloatArray:
         """``link.inband_emission_model=3gpp``: the leakage into each resource of each receiver,
         ``leak[rx, slot, v] = sum_i M[v, i] total[rx, slot, i]`` (mW, [N * R]), summed in ``i`` order
-        element by element (so the compiled chunk's ``kernels.period._leak_mw`` gives the same bits; a BLAS
+        element by element (so the compiled chunk's ``kernels.period_passes._leak_mw`` gives the same bits; a BLAS
         product may sum in another order).
 
         Args:

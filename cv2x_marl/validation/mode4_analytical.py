@@ -371,44 +371,12 @@ def analytical_pdr(
         ValueError: an argument out of its range (named, with the range), or a density at which
             eq. 29 does not hold (more sensed vehicles than twice the resources).
     """
-    d = np.atleast_1d(np.asarray(distance_m, dtype=np.float64))
-    if d.ndim != 1 or d.size == 0:
-        raise ValueError(f"distance_m must be a scalar or a non-empty 1-D array, got shape {d.shape}")
-    if not np.all(np.isfinite(d)) or np.any(d < 0.0) or np.any(d > 1500.0):
-        raise ValueError("distance_m must be in [0, 1500] m (finite)")
-    density = _check_range("density_veh_per_km", density_veh_per_km, 0.0, 1000.0, lo_open=True)
-    lam = _check_range("packets_per_s", packets_per_s, 1.0, 100.0)
-    pt = _check_range("tx_power_dbm", tx_power_dbm, -30.0, 46.0)
-    if int(n_subchannels) != n_subchannels or not 1 <= int(n_subchannels) <= 50:
-        raise ValueError(f"n_subchannels must be an integer in [1, 50], got {n_subchannels!r}")
-    if int(packet_bytes) != packet_bytes or not 1 <= int(packet_bytes) <= 10000:
-        raise ValueError(f"packet_bytes must be an integer in [1, 10000], got {packet_bytes!r}")
-    psen = _check_range("sensing_threshold_dbm", sensing_threshold_dbm, -150.0, 0.0)
-    step = _check_range("grid_step_db", grid_step_db, 0.0, 1.0, lo_open=True)
-    _check_range("carrier_hz", carrier_hz, 1e8, 1e11)
-    _check_range("antenna_height_m", antenna_height_m, 0.1, 10.0)
-    _check_range("shadowing_std_db", shadowing_std_db, 0.0, 20.0, lo_open=True)
-    int_range = _check_range("interferer_range_m", interferer_range_m, 0.0, 5000.0)
-    sen_range = _check_range("sensing_range_m", sensing_range_m, 10.0, 5000.0)
-    frac = _check_range("candidate_fraction", candidate_fraction, 0.0, 1.0, lo_open=True)
-    if int_range + float(d.max()) > 2.0 * sen_range:
-        raise ValueError(
-            f"interferer_range_m + max(distance_m) must not exceed 2 * sensing_range_m ({2.0 * sen_range:g} m)"
-        )
-    s = int(n_subchannels)
-    fmt = PAPER_FORMATS.get((int(packet_bytes), s))
-    if bler_curve is None or (data_rbs is None and noise_dbm is None):
-        if fmt is None:
-            raise ValueError(
-                f"packet_bytes={packet_bytes} with n_subchannels={s} is not one of the paper's formats "
-                f"{sorted(PAPER_FORMATS)}; pass bler_curve and data_rbs (or noise_dbm)"
-            )
-    curve = bler_curve if bler_curve is not None else PAPER_FORMATS[(int(packet_bytes), s)][1]
-    if noise_dbm is None:
-        rbs = data_rbs if data_rbs is not None else PAPER_FORMATS[(int(packet_bytes), s)][0]
-        noise = noise_power_dbm(rbs)
-    else:
-        noise = _check_range("noise_dbm", noise_dbm, -200.0, 0.0)
+    d, density, lam, pt, s, psen, step, int_range, sen_range, frac = _checked_arguments(
+        distance_m, density_veh_per_km, packets_per_s, tx_power_dbm, n_subchannels, packet_bytes,
+        sensing_threshold_dbm, grid_step_db, carrier_hz, antenna_height_m, shadowing_std_db,
+        interferer_range_m, sensing_range_m, candidate_fraction,
+    )  # fmt: skip
+    curve, noise = _link_curve_and_noise(packet_bytes, s, bler_curve, data_rbs, noise_dbm)
     beta = density / 1000.0  # veh/m
     pl_kw = {"carrier_hz": float(carrier_hz), "antenna_height_m": float(antenna_height_m)}
     pl_kw["shadowing_std_db"] = float(shadowing_std_db)
@@ -424,20 +392,9 @@ def analytical_pdr(
         np.array([_NO_INTERFERENCE_DBM]), np.array([shadowing_std_db]), axis_dbm, noise, step
     )
     p_pro = _mean_bler(f_signal, f_noise, curve, axis_dbm, step)[:, 0]
-
-    # --- interference of each interferer on each link (eqs. 17, 18)
-    k_int = round(int_range * beta)
-    ks = np.arange(-k_int, k_int + 1)
-    interferer_m = ks[ks != 0] / beta  # every 1/beta from the receiver, the receiver excluded
-    if interferer_m.size:
-        pl_i, std_i = path_loss_db(interferer_m, **pl_kw)
-        f_in = _interference_plus_noise_density(pt - pl_i, std_i, axis_dbm, noise, step)
-        p_sinr = _mean_bler(f_signal, f_in, curve, axis_dbm, step)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            p_int = (p_sinr - p_pro[:, None]) / (1.0 - p_pro[:, None])
-        p_int = np.where(p_pro[:, None] == 1.0, 0.0, p_int)
-    else:
-        p_int = np.zeros((d.size, 0))
+    interferer_m, p_int = _interference_on_links(
+        d.size, int_range, beta, pt, f_signal, p_pro, curve, axis_dbm, noise, step, pl_kw
+    )
 
     # --- resources (eq. 28) and Step 2: sensing ratio, excluded and common resources (eqs. 26-30, 34)
     n_res = s * 1000.0 / lam
@@ -465,6 +422,128 @@ def analytical_pdr(
     alpha = alpha_weight(cbr)
 
     # --- Step 3: raise the threshold until N_a >= N_c (eqs. 32, 33), then eq. 31
+    th3, ne3 = _step3_threshold(grid_m, beta, pt, psen, step, n_res, n_cand, pl_kw)
+    na3 = n_res - ne3
+    if alpha < 1.0 and interferer_m.size and s_psr > 0.0:
+        p_col3 = _collision_probability(
+            p_int, d, interferer_m, common_candidates(ne3, na3), n_cand, lam, pt, th3, pl_kw
+        )
+    else:
+        p_col3 = np.zeros(d.shape)
+    p_col = alpha * p_col2 + (1.0 - alpha) * p_col3  # eq. 21
+    scalars = {"cbr": cbr, "alpha": alpha, "n_resources": n_res, "n_excluded_step2": ne2, "n_excluded_step3": ne3}
+    scalars |= {"threshold_step3_dbm": th3, "noise_dbm": noise}
+    return _pdr_and_shares(d, p_hd, p_sen, p_pro, p_col, p_col2, p_col3, scalars)
+
+
+def _checked_arguments(
+    distance_m: ArrayLike,
+    density_veh_per_km: float,
+    packets_per_s: float,
+    tx_power_dbm: float,
+    n_subchannels: int,
+    packet_bytes: int,
+    sensing_threshold_dbm: float,
+    grid_step_db: float,
+    carrier_hz: float,
+    antenna_height_m: float,
+    shadowing_std_db: float,
+    interferer_range_m: float,
+    sensing_range_m: float,
+    candidate_fraction: float,
+) -> tuple[FloatArray, float, float, float, int, float, float, float, float, float]:
+    """:func:`analytical_pdr`'s arguments checked in its order (ValueError naming one out of its range): ``(d,
+    density, packets per s, P_t, S, P_SEN, grid step, interferer range, sensing range, candidate fraction)``."""
+    d = np.atleast_1d(np.asarray(distance_m, dtype=np.float64))
+    if d.ndim != 1 or d.size == 0:
+        raise ValueError(f"distance_m must be a scalar or a non-empty 1-D array, got shape {d.shape}")
+    if not np.all(np.isfinite(d)) or np.any(d < 0.0) or np.any(d > 1500.0):
+        raise ValueError("distance_m must be in [0, 1500] m (finite)")
+    density = _check_range("density_veh_per_km", density_veh_per_km, 0.0, 1000.0, lo_open=True)
+    lam = _check_range("packets_per_s", packets_per_s, 1.0, 100.0)
+    pt = _check_range("tx_power_dbm", tx_power_dbm, -30.0, 46.0)
+    if int(n_subchannels) != n_subchannels or not 1 <= int(n_subchannels) <= 50:
+        raise ValueError(f"n_subchannels must be an integer in [1, 50], got {n_subchannels!r}")
+    if int(packet_bytes) != packet_bytes or not 1 <= int(packet_bytes) <= 10000:
+        raise ValueError(f"packet_bytes must be an integer in [1, 10000], got {packet_bytes!r}")
+    psen = _check_range("sensing_threshold_dbm", sensing_threshold_dbm, -150.0, 0.0)
+    step = _check_range("grid_step_db", grid_step_db, 0.0, 1.0, lo_open=True)
+    _check_range("carrier_hz", carrier_hz, 1e8, 1e11)
+    _check_range("antenna_height_m", antenna_height_m, 0.1, 10.0)
+    _check_range("shadowing_std_db", shadowing_std_db, 0.0, 20.0, lo_open=True)
+    int_range = _check_range("interferer_range_m", interferer_range_m, 0.0, 5000.0)
+    sen_range = _check_range("sensing_range_m", sensing_range_m, 10.0, 5000.0)
+    frac = _check_range("candidate_fraction", candidate_fraction, 0.0, 1.0, lo_open=True)
+    if int_range + float(d.max()) > 2.0 * sen_range:
+        raise ValueError(
+            f"interferer_range_m + max(distance_m) must not exceed 2 * sensing_range_m ({2.0 * sen_range:g} m)"
+        )
+    return d, density, lam, pt, int(n_subchannels), psen, step, int_range, sen_range, frac
+
+
+def _link_curve_and_noise(
+    packet_bytes: int, s: int, bler_curve: BlerCurve | None, data_rbs: int | None, noise_dbm: float | None
+) -> tuple[BlerCurve, float]:
+    """The BLER curve and the noise power (dBm) of :func:`analytical_pdr`: those given, else the paper's format
+    ``(packet_bytes, s)``'s (ValueError: not one of the paper's formats, or ``noise_dbm`` out of its range)."""
+    fmt = PAPER_FORMATS.get((int(packet_bytes), s))
+    if bler_curve is None or (data_rbs is None and noise_dbm is None):
+        if fmt is None:
+            raise ValueError(
+                f"packet_bytes={packet_bytes} with n_subchannels={s} is not one of the paper's formats "
+                f"{sorted(PAPER_FORMATS)}; pass bler_curve and data_rbs (or noise_dbm)"
+            )
+    curve = bler_curve if bler_curve is not None else PAPER_FORMATS[(int(packet_bytes), s)][1]
+    if noise_dbm is None:
+        rbs = data_rbs if data_rbs is not None else PAPER_FORMATS[(int(packet_bytes), s)][0]
+        noise = noise_power_dbm(rbs)
+    else:
+        noise = _check_range("noise_dbm", noise_dbm, -200.0, 0.0)
+    return curve, noise
+
+
+def _interference_on_links(
+    n_links: int,
+    int_range: float,
+    beta: float,
+    pt: float,
+    f_signal: FloatArray,
+    p_pro: FloatArray,
+    curve: BlerCurve,
+    axis_dbm: FloatArray,
+    noise: float,
+    step: float,
+    pl_kw: dict[str, float],
+) -> tuple[FloatArray, FloatArray]:
+    """The interferers' distances from the receiver (every ``1 / beta`` up to ``int_range``, the receiver
+    excluded) and ``p_INT`` [links, interferers], the loss each one alone causes on each link (eqs. 17, 18)."""
+    k_int = round(int_range * beta)
+    ks = np.arange(-k_int, k_int + 1)
+    interferer_m = ks[ks != 0] / beta  # every 1/beta from the receiver, the receiver excluded
+    if interferer_m.size:
+        pl_i, std_i = path_loss_db(interferer_m, **pl_kw)
+        f_in = _interference_plus_noise_density(pt - pl_i, std_i, axis_dbm, noise, step)
+        p_sinr = _mean_bler(f_signal, f_in, curve, axis_dbm, step)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p_int = (p_sinr - p_pro[:, None]) / (1.0 - p_pro[:, None])
+        p_int = np.where(p_pro[:, None] == 1.0, 0.0, p_int)
+    else:
+        p_int = np.zeros((n_links, 0))
+    return interferer_m, p_int
+
+
+def _step3_threshold(
+    grid_m: FloatArray,
+    beta: float,
+    pt: float,
+    psen: float,
+    step: float,
+    n_res: float,
+    n_cand: float,
+    pl_kw: dict[str, float],
+) -> tuple[float, float]:
+    """Step 3's threshold, raised from ``psen`` in ``step`` dB until N_a >= N_c (eqs. 32, 33), and the resources
+    it excludes (ValueError: the search did not end, a guard, not a model step)."""
     th3 = psen
     while True:
         s_psr3 = 2.0 * beta * float(_psr(grid_m, pt, th3, **pl_kw).sum())  # eq. 32.1
@@ -474,25 +553,26 @@ def analytical_pdr(
         th3 += step
         if th3 > pt + 100.0:  # PSR is 0 long before; a guard, not a model step
             raise ValueError("Step 3 threshold search did not end; check density_veh_per_km and n_subchannels")
-    na3 = n_res - ne3
-    if alpha < 1.0 and interferer_m.size and s_psr > 0.0:
-        p_col3 = _collision_probability(
-            p_int, d, interferer_m, common_candidates(ne3, na3), n_cand, lam, pt, th3, pl_kw
-        )
-    else:
-        p_col3 = np.zeros(d.shape)
-    p_col = alpha * p_col2 + (1.0 - alpha) * p_col3  # eq. 21
+    return th3, ne3
 
-    # --- unconditional shares (eqs. 6.1-6.5) and the PDR (eq. 6)
+
+def _pdr_and_shares(
+    d: FloatArray,
+    p_hd: FloatArray,
+    p_sen: FloatArray,
+    p_pro: FloatArray,
+    p_col: FloatArray,
+    p_col2: FloatArray,
+    p_col3: FloatArray,
+    scalars: dict[str, float],
+) -> dict[str, FloatArray]:
+    """:func:`analytical_pdr`'s result: the unconditional shares (eqs. 6.1-6.5) and the PDR (eq. 6) from the
+    conditional probabilities, then ``scalars`` as 0-d arrays."""
     delta_hd = p_hd
     delta_sen = p_sen * (1.0 - p_hd)
     delta_pro = p_pro * (1.0 - p_hd) * (1.0 - p_sen)
     delta_col = p_col * (1.0 - p_hd) * (1.0 - p_sen) * (1.0 - p_pro)
     pdr = 1.0 - delta_hd - delta_sen - delta_pro - delta_col
-
-    def scalar(x: float) -> FloatArray:
-        return np.asarray(float(x), dtype=np.float64)
-
     return {
         "distance_m": d,
         "pdr": pdr,
@@ -506,11 +586,5 @@ def analytical_pdr(
         "p_col": p_col,
         "p_col_step2": p_col2,
         "p_col_step3": p_col3,
-        "cbr": scalar(cbr),
-        "alpha": scalar(alpha),
-        "n_resources": scalar(n_res),
-        "n_excluded_step2": scalar(ne2),
-        "n_excluded_step3": scalar(ne3),
-        "threshold_step3_dbm": scalar(th3),
-        "noise_dbm": scalar(noise),
+        **{k: np.asarray(float(v), dtype=np.float64) for k, v in scalars.items()},
     }

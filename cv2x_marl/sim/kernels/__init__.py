@@ -16,8 +16,9 @@ Compiled code is cached on disk (``cache=True``): the first call in a fresh chec
 Modules: :mod:`.pathloss` (WINNER+ B1), :mod:`.per` (PER curves and the threshold model), :mod:`.pairs`
 (pairs within range, pair geometry, link indexing), :mod:`.shadowing` (correlated shadowing, received
 powers), :mod:`.snapshot` (every link of a snapshot, one mover's row, eq. 12 summaries), :mod:`.period`
-(one period of the subframe loop), :mod:`.field` (the shadowing field that follows the vehicles, its
-cosines by :mod:`.trig`: fdlibm's cosine in plain IEEE arithmetic, the same bits on every x86-64 CPU),
+(one period of the subframe loop; its named tuples in :mod:`.period_tuples`, its passes in
+:mod:`.period_passes`), :mod:`.field` (the shadowing field that follows the vehicles, its cosines by
+:mod:`.trig`: fdlibm's cosine in plain IEEE arithmetic, the same bits on every x86-64 CPU),
 :mod:`.team` (the team objective when one vehicle moves), :mod:`.column` (received power in the numpy
 reference's arithmetic, one mover's column of the links). This package re-exports their public names.
 """
@@ -54,8 +55,8 @@ from cv2x_marl.sim.kernels.period import (
     SciModel,
     chunk_tile_subframes,
     period_chunk,
-    sci_probability,
 )
+from cv2x_marl.sim.kernels.period_passes import sci_probability
 from cv2x_marl.sim.kernels.shadowing import received_powers, shadowing_update_dense, shadowing_update_sparse
 from cv2x_marl.sim.kernels.snapshot import (
     levels_db,

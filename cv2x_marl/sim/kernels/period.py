@@ -1,20 +1,32 @@
-"""One period of the simulator's subframe loop, compiled: SCI decoding, sensing RSSI, PSSCH outcomes."""
+"""One period of the simulator's subframe loop, compiled: SCI decoding, sensing RSSI, PSSCH outcomes.
+
+Its named tuples in and out are :mod:`cv2x_marl.sim.kernels.period_tuples`' (re-exported here), its compiled
+passes :mod:`cv2x_marl.sim.kernels.period_passes`'."""
 
 from __future__ import annotations
-
-import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
 from cv2x_marl.interrupts import signals_deferred
-from cv2x_marl.sim.kernels.per import (
-    LIN_MARGIN,
-    db_below,
-    interp_clamped,
-    success_of_ratio,
+from cv2x_marl.sim.kernels.period_passes import (
+    _chunk_outputs,
+    _commit_tile,
+    _gather_links,
+    _tile_outcomes,
+    _tile_starts,
+    _tile_sums,
+    _vehicle_tiles,
+)
+from cv2x_marl.sim.kernels.period_tuples import (
+    ChunkBuffers,
+    ChunkLinks,
+    ChunkResult,
+    ChunkVehicles,
+    DistanceBins,
+    LinkModel,
+    SciModel,
 )
 
 FloatArray = NDArray[np.float64]
@@ -33,143 +45,6 @@ def chunk_tile_subframes(n: int, n_sub: int, rri: int, tile_bytes: int | None = 
     ``rri`` (one tile: the whole period)."""
     budget = CHUNK_TILE_BYTES if tile_bytes is None else tile_bytes
     return max(1, min(rri, budget // max(1, 8 * n * n_sub)))
-
-
-class ChunkLinks(NamedTuple):
-    """The period's ordered pairs and the links a chunk visits (:func:`period_chunk`).
-
-    Attributes:
-        rx, tx, distance_m, rx_mw: [L_all] the period's ordered pairs, their distance (m) and received
-            power (mW, faded).
-        subset, links: with ``subset``, ``links`` are the indices of the links whose transmitter is
-            active, increasing (from :func:`~cv2x_marl.sim.kernels.pairs.active_links`: a chunk of a few
-            transmitters visits only their links, possibly none); without, every link is visited and
-            checked against ``active``.
-    """
-
-    rx: NDArray[np.int64]
-    tx: NDArray[np.int64]
-    distance_m: FloatArray
-    rx_mw: FloatArray
-    subset: bool
-    links: NDArray[np.int64]
-
-
-class ChunkVehicles(NamedTuple):
-    """Per vehicle [N]: who transmits in the chunk and the SPS state the links read.
-
-    Attributes:
-        active: [N] transmits in the chunk.
-        resource, slot: [N] reserved resource and its subframe.
-        releasing: [N] will reselect: its SCI reserves nothing (TS 36.213 14.1.1.6).
-    """
-
-    active: NDArray[np.bool_]
-    resource: NDArray[np.int64]
-    slot: NDArray[np.int64]
-    releasing: NDArray[np.bool_]
-
-
-class LinkModel(NamedTuple):
-    """The PSSCH link model of a chunk.
-
-    Attributes:
-        n_res: resources per period; n_sub: subchannels per subframe (resource ``r`` is slot
-            ``r // n_sub``, subchannel ``r % n_sub``).
-        noise_mw: noise power, mW.
-        model: :data:`MODEL_PER_TABLE`, :data:`MODEL_PER_TABLE_LOG` or :data:`MODEL_THRESHOLD`.
-        per_sinr_db, per: [K] the PER table.
-        threshold_db: SINR threshold of the threshold model, dB.
-        sensitivity_dbm: received power below which a link fails (-inf: none), dBm.
-        flat_inband_lin: ``link.inband_emission_db`` in linear units (flat in-band emission: that share of
-            the power of the subframe's other subchannels adds to the interference); 0: none.
-        leakage: [n_sub, n_sub] the 3gpp in-band leakage ``M[victim, interferer]``
-            (:func:`cv2x_marl.sim.inband.pool_leakage_weights`), empty: none. The leakage into subchannel
-            ``v`` of a receiver's subframe, ``sum_i M[v, i] total[i]`` (summed in ``i`` order, as
-            :func:`cv2x_marl.sim.chunk.inband_leakage`), adds to the interference and to the S-RSSI.
-    """
-
-    n_res: int
-    n_sub: int
-    noise_mw: float
-    model: int
-    per_sinr_db: FloatArray
-    per: FloatArray
-    threshold_db: float
-    sensitivity_dbm: float
-    flat_inband_lin: float
-    leakage: FloatArray
-
-
-class SciModel(NamedTuple):
-    """``sps.sci_decoding``: which SCIs a receiver decodes.
-
-    Attributes:
-        sinr_lin, bler: the PSCCH BLER curve (points in linear SINR, :class:`cv2x_marl.sim.link.PscchCurve`);
-            an SCI counts only if ``u < 1 - BLER(SINR + offset)``. Empty curve: every SCI (``always``).
-        offset_db: ``sps.sci_sinr_offset_db``.
-        gates_pssch: ``sps.sci_gates_pssch``: a link succeeds only if its SCI decodes too (``P`` times
-            the SCI's decoding probability; ``P0`` likewise with the SCI at the SNR).
-    """
-
-    sinr_lin: FloatArray
-    bler: FloatArray
-    offset_db: float
-    gates_pssch: bool
-
-
-class ChunkBuffers(NamedTuple):
-    """The arrays :func:`period_chunk` updates in place.
-
-    Attributes:
-        period_rssi_mw: [N * n_res] the period's S-RSSI sums, mW.
-        period_sci_mw: [N * n_res] the period's strongest decoded SCI (PSSCH power, mW).
-        total: [N * n_res] zeros, a scratch for the power sums (the first ``N * tile_subframes * n_sub``
-            entries used): left zero again on return.
-        total_slot: [N * RRI] zeros, the scratch for the flat model's power per receiver and subframe
-            (summed link by link, as the numpy path's ``bincount``): left zero again on return.
-        tile_subframes: subframes per tile (:func:`chunk_tile_subframes`), >= 1; any value gives the same
-            results.
-    """
-
-    period_rssi_mw: FloatArray
-    period_sci_mw: FloatArray
-    total: FloatArray
-    total_slot: FloatArray
-    tile_subframes: int
-
-
-class DistanceBins(NamedTuple):
-    """The PRR accumulator's layout (:class:`cv2x_marl.sim.metrics.PrrAccumulator`): ``n_bins`` distance
-    bins of ``bin_m`` metres and ``n_causes`` loss causes."""
-
-    bin_m: float
-    n_bins: int
-    n_causes: int
-
-
-class ChunkResult(NamedTuple):
-    """What :func:`period_chunk` returns.
-
-    Attributes:
-        tx, rx, p, cause: [L] the active links, in link order: transmitter, receiver, success probability
-            and cause code (:data:`cv2x_marl.sim.metrics.CAUSE_CODE`).
-        bin_n, bin_decoded, bin_expected: [n_bins] the chunk's per-distance-bin sums.
-        bin_causes: [n_causes * n_bins] links per cause and bin, cause-major.
-        node_n, node_decoded, node_expected: [N] the chunk's per-transmitter sums.
-    """
-
-    tx: NDArray[np.int64]
-    rx: NDArray[np.int64]
-    p: FloatArray
-    cause: NDArray[np.int8]
-    bin_n: NDArray[np.int64]
-    bin_decoded: NDArray[np.int64]
-    bin_expected: FloatArray
-    bin_causes: NDArray[np.int64]
-    node_n: NDArray[np.int64]
-    node_decoded: NDArray[np.int64]
-    node_expected: FloatArray
 
 
 def period_chunk(
@@ -326,25 +201,8 @@ def _period_chunk(
     rri = n_res // n_sub
     n_tiles = (rri + tile_subframes - 1) // tile_subframes
     width = tile_subframes * n_sub  # resources per tile (the last tile may hold fewer)
-    # per vehicle (no division per link): its tile (-1: not transmitting in the chunk), its resource,
-    # subchannel and subframe within the tile
-    veh = np.full((n, 4), -1, dtype=np.int32)
-    for t in range(n):
-        if active[t]:
-            g = resource[t] // width
-            veh[t, 0] = g
-            veh[t, 1] = resource[t] - g * width
-            veh[t, 2] = resource[t] % n_sub
-            veh[t, 3] = resource[t] // n_sub - g * tile_subframes
-    # the chunk's active links counted per tile (the transmitter's subframe // tile_subframes) ...
-    tile_start = np.zeros(n_tiles + 1, dtype=np.int64)
-    for q in range(n_visit):
-        k = links[q] if subset else q
-        g = veh[tx[k], 0]
-        if g >= 0:
-            tile_start[g + 1] += 1
-    for g in range(n_tiles):
-        tile_start[g + 1] += tile_start[g]
+    veh = _vehicle_tiles(active, resource, n_sub, width, tile_subframes)
+    tile_start = _tile_starts(tx, links, subset, n_visit, veh, n_tiles)
     n_links = tile_start[n_tiles]
     out_tx = np.empty(n_links, dtype=np.int64)
     out_rx = np.empty(n_links, dtype=np.int64)
@@ -360,20 +218,10 @@ def _period_chunk(
     tile_u = np.empty(n_links)  # the PSSCH uniform, then P
     tile_cause = np.empty(n_links, dtype=np.int8)
     sci_sinr = sci_bler.shape[0] > 0
-    fill = tile_start[:n_tiles].copy()
-    for q in range(n_visit):
-        k = links[q] if subset else q
-        t = tx[k]
-        g = veh[t, 0]
-        if g >= 0:
-            j = fill[g]
-            fill[g] = j + 1
-            tile_rt[2 * j] = rx[k]
-            tile_rt[2 * j + 1] = t
-            tile_s[j] = rx_mw[k]
-            tile_u[j] = link_rng.random()
-            if sci_sinr:  # the SCI draw is taken for every link, as the numpy path's
-                tile_u_sci[j] = sci_rng.random()
+    _gather_links(
+        rx, tx, rx_mw, links, subset, n_visit, veh, tile_start, n_tiles, tile_rt, tile_s, tile_u, tile_u_sci,
+        sci_sinr, link_rng, sci_rng,
+    )  # fmt: skip
     flat = flat_inband_lin > 0.0
     three_gpp = leakage.shape[0] > 0
     k_per = per_sinr_db.shape[0]
@@ -397,206 +245,18 @@ def _period_chunk(
             continue
         res0 = g * width  # the tile's first resource
         n_slots = min(rri, (g + 1) * tile_subframes) - g * tile_subframes
-        # pass 1: the sums, in link order
-        for j in range(lo, hi):
-            r = tile_rt[2 * j]
-            t = tile_rt[2 * j + 1]
-            sum_t[r * width + veh[t, 1]] += tile_s[j]
-            if flat:
-                slot_t[r * tile_subframes + veh[t, 3]] += tile_s[j]
-        # pass 2: each link's outcome
-        for j in range(lo, hi):
-            r = tile_rt[2 * j]
-            t = tile_rt[2 * j + 1]
-            sub = veh[t, 2]
-            key = r * width + veh[t, 1]
-            s = tile_s[j]
-            i_mw = max(sum_t[key] - s, 0.0)
-            if flat:
-                i_mw = i_mw + flat_inband_lin * max(slot_t[r * tile_subframes + veh[t, 3]] - sum_t[key], 0.0)
-            if three_gpp:
-                i_mw = i_mw + _leak_mw(sum_t, key - sub, leakage, sub, n_sub)
-            u = tile_u[j]
-            ratio = s / (i_mw + noise_mw)
-            p = success_of_ratio(ratio, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
-            outcome = u < p
-            sci_decoded = True
-            u_sci = 0.0
-            if sci_sinr:
-                p_sci = sci_probability(ratio, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi)
-                u_sci = tile_u_sci[j]
-                sci_decoded = u_sci < p_sci
-                if sci_gates_pssch:  # the PSSCH needs its SCI: both decode, P the product
-                    outcome = outcome and sci_decoded
-                    p = p * p_sci
-            would0 = True  # read only when the link fails: then P0 decides propagation or collision
-            if not outcome:
-                p0 = success_of_ratio(s / noise_mw, model, per_sinr_db, per, lin_lo, lin_hi, threshold_db, thr_lin)
-                would0 = u < p0
-                if sci_gates_pssch:
-                    would0 = would0 and u_sci < sci_probability(
-                        s / noise_mw, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi
-                    )
-            hd = slot[r] == slot[t]
-            below = sensitivity_dbm > -np.inf and db_below(s, sens_lin, sensitivity_dbm)
-            fail = hd or below
-            if fail:
-                p = 0.0
-                outcome = False
-            c = 0
-            if not outcome:
-                c = 4 if would0 else 3  # collision, propagation
-            if below:
-                c = 2
-            if hd:
-                c = 1
-            if not fail and not releasing[t] and sci_decoded and s > sci_t[key]:
-                sci_t[key] = s
-            tile_u[j] = p
-            tile_cause[j] = c
-        # the tile's S-RSSI and SCI maxima into the period's, the scratches zeroed again: a tile with fewer
-        # links than receiver-subframes through its links (each receiver's subframe once), a larger one
-        # by a scan of the scratches in order
-        if hi - lo < n * n_slots:
-            for j in range(lo, hi):
-                r = tile_rt[2 * j]
-                t = tile_rt[2 * j + 1]
-                sub = veh[t, 2]
-                key = r * width + veh[t, 1]
-                if flat:
-                    slot_t[r * tile_subframes + veh[t, 3]] = 0.0
-                _commit_rssi(
-                    sum_t,
-                    key - sub,
-                    period_rssi_mw,
-                    r * n_res + res0 + veh[t, 1] - sub,
-                    leakage,
-                    n_sub,
-                    three_gpp,
-                    leak_row,
-                )
-                if sci_t[key] > period_sci_mw[r * n_res + res0 + veh[t, 1]]:
-                    period_sci_mw[r * n_res + res0 + veh[t, 1]] = sci_t[key]
-                sci_t[key] = 0.0
-        else:
-            for r in range(n):
-                for a in range(n_slots):
-                    _commit_rssi(
-                        sum_t,
-                        r * width + a * n_sub,
-                        period_rssi_mw,
-                        r * n_res + res0 + a * n_sub,
-                        leakage,
-                        n_sub,
-                        three_gpp,
-                        leak_row,
-                    )
-                for e in range(n_slots * n_sub):
-                    if sci_t[r * width + e] > period_sci_mw[r * n_res + res0 + e]:
-                        period_sci_mw[r * n_res + res0 + e] = sci_t[r * width + e]
-                    sci_t[r * width + e] = 0.0
-            if flat:
-                slot_t[: n * tile_subframes] = 0.0
-    # the outputs and the PRR accumulators in link order (the tiles' outputs merged back: the float sums
-    # in the order of the numpy path)
-    bin_n = np.zeros(n_bins, dtype=np.int64)
-    bin_dec = np.zeros(n_bins, dtype=np.int64)
-    bin_exp = np.zeros(n_bins)
-    bin_causes = np.zeros(n_causes * n_bins, dtype=np.int64)
-    node_n = np.zeros(n, dtype=np.int64)
-    node_dec = np.zeros(n, dtype=np.int64)
-    node_exp = np.zeros(n)
-    fill[:] = tile_start[:n_tiles]
-    m = 0
-    for q in range(n_visit):
-        k = links[q] if subset else q
-        t = tx[k]
-        g = veh[t, 0]
-        if g < 0:
-            continue
-        j = fill[g]
-        fill[g] = j + 1
-        p = tile_u[j]
-        c = tile_cause[j]
-        outcome = c == 0
-        out_tx[m] = t
-        out_rx[m] = rx[k]
-        p_out[m] = p
-        cause_out[m] = c
-        b = math.floor(distance_m[k] / bin_m)  # numba: an int64
-        if b < n_bins:
-            bin_n[b] += 1
-            bin_dec[b] += outcome
-            bin_exp[b] += p
-            bin_causes[c * n_bins + b] += 1
-        if c != 1:
-            node_n[t] += 1
-            node_dec[t] += outcome
-            node_exp[t] += p
-        m += 1
-    return ChunkResult(
-        out_tx, out_rx, p_out, cause_out, bin_n, bin_dec, bin_exp, bin_causes, node_n, node_dec, node_exp
-    )
-
-
-@njit(cache=True)
-def sci_probability(
-    ratio: float, offset_db: float, sinr_lin: FloatArray, bler: FloatArray, ratio_lo: float, ratio_hi: float
-) -> float:
-    """``1 - BLER(10 log10(ratio) + offset)`` of the PSCCH curve (points ``sinr_lin`` in linear units),
-    :meth:`cv2x_marl.sim.link.PscchCurve.decoding_probability`'s arithmetic (0 for NaN). Outside the
-    curve, the constant that arithmetic gives (0 below: BLER 1; ``1 - bler[-1]`` above) without the
-    logarithm and the power: ``ratio_lo``, ``ratio_hi`` are the curve's ends as linear SINR before the
-    offset (``sinr_lin[0] / 10^(offset / 10)``, ``sinr_lin[-1] / 10^(offset / 10)``), and within
-    :data:`LIN_MARGIN` of them the exact arithmetic decides."""
-    if ratio < ratio_lo * (1.0 - LIN_MARGIN):
-        return 0.0
-    if ratio > ratio_hi * (1.0 + LIN_MARGIN):
-        return 1.0 - bler[-1]
-    x = 10.0 * math.log10(ratio) + offset_db
-    if math.isnan(x):
-        return 0.0
-    return 1.0 - interp_clamped(10.0 ** (x / 10.0), sinr_lin, bler, 1.0, bler[-1])
-
-
-@njit(cache=True)
-def _commit_rssi(
-    total: FloatArray,
-    base: int,
-    period_rssi_mw: FloatArray,
-    rssi_base: int,
-    leakage: FloatArray,
-    n_sub: int,
-    three_gpp: bool,
-    leak_row: FloatArray,
-) -> None:
-    """Add one receiver's subframe (``total[base : base + n_sub]``) to the period's S-RSSI
-    (``period_rssi_mw[rssi_base : rssi_base + n_sub]``) and zero it: ``rssi + total`` entry by entry, then
-    (3gpp) ``+ leak`` into every subchannel of a subframe that heard something (the numpy path's
-    ``rssi += total; rssi += leak``: the same bits); ``leak_row`` [n_sub] is scratch."""
-    if three_gpp:
-        heard = False
-        for v in range(n_sub):
-            heard = heard or total[base + v] != 0.0
-        if not heard:
-            return
-        for v in range(n_sub):
-            leak_row[v] = _leak_mw(total, base, leakage, v, n_sub)
-        for v in range(n_sub):
-            period_rssi_mw[rssi_base + v] = (period_rssi_mw[rssi_base + v] + total[base + v]) + leak_row[v]
-            total[base + v] = 0.0
-        return
-    for v in range(n_sub):
-        if total[base + v] != 0.0:
-            period_rssi_mw[rssi_base + v] += total[base + v]
-            total[base + v] = 0.0
-
-
-@njit(cache=True)
-def _leak_mw(total: FloatArray, base: int, leakage: FloatArray, victim: int, n_sub: int) -> float:
-    """In-band leakage into subchannel ``victim`` of one receiver's subframe: ``sum_i M[victim, i]
-    total[base + i]``, summed in ``i`` order (the arithmetic of :func:`cv2x_marl.sim.chunk.inband_leakage`)."""
-    acc = total[base] * leakage[victim, 0]
-    for i in range(1, n_sub):
-        acc = acc + total[base + i] * leakage[victim, i]
-    return acc
+        _tile_sums(lo, hi, tile_rt, tile_s, veh, sum_t, slot_t, width, tile_subframes, flat)
+        _tile_outcomes(
+            lo, hi, tile_rt, tile_s, tile_u, tile_u_sci, tile_cause, veh, sum_t, slot_t, sci_t, width,
+            tile_subframes, flat, flat_inband_lin, three_gpp, leakage, n_sub, noise_mw, model, per_sinr_db, per,
+            lin_lo, lin_hi, threshold_db, thr_lin, sci_sinr, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi,
+            sci_gates_pssch, slot, sensitivity_dbm, sens_lin, releasing,
+        )  # fmt: skip
+        _commit_tile(
+            lo, hi, n, n_slots, res0, n_res, tile_rt, veh, sum_t, slot_t, sci_t, width, tile_subframes, flat,
+            three_gpp, leakage, n_sub, leak_row, period_rssi_mw, period_sci_mw,
+        )  # fmt: skip
+    return _chunk_outputs(
+        rx, tx, distance_m, links, subset, n_visit, n, veh, tile_start, n_tiles, tile_u, tile_cause, out_tx, out_rx,
+        p_out, cause_out, bin_m, n_bins, n_causes,
+    )  # fmt: skip
