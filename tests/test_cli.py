@@ -113,3 +113,25 @@ def test_protocol_flags_refused_by_name(
     assert main([*argv, "--quiet"]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_the_env_option_flags_are_the_schemas() -> None:
+    """The CLI's env-option flags hold the schema's entries as data (the CLI starts without numpy): equal to it."""
+    from cv2x_marl.cli.env_flags import SPECS
+    from cv2x_marl.env.options import flag_spec
+
+    assert SPECS == {name: flag_spec(name) for name in SPECS}, "regenerate with: python -m cv2x_marl.cli.env_flags"
+
+
+@pytest.mark.parametrize("value", ["10001", "1e9", "0"])
+def test_an_env_option_flag_refuses_what_the_schema_refuses(
+    value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Refused while the arguments are parsed (exit 2, nothing written), naming the flag and the schema's range."""
+    from cv2x_marl.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--max-cycles", value, "--out", str(tmp_path / "out")])
+    assert exc.value.code == 2
+    assert f"argument --max-cycles: must be an integer >= 1 and <= 10000, got '{value}'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

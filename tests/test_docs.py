@@ -84,6 +84,40 @@ def test_every_documented_command_parses(page: Path, command: str) -> None:
         pytest.fail(f"{_name(page)}: `cv2x-marl {command}` does not parse (exit {exc.code})")
 
 
+def _inline_commands(text: str) -> list[str]:
+    """The inline ``cv2x-marl COMMAND ...`` code spans of a page (prose that names a command and its flags)."""
+    names = "|".join(COMMANDS)
+    rx = r"`(?:\S*/)?cv2x-marl ((?:" + names + r")\b[^`]*)`"
+    return [" ".join(m.group(1).split()) for m in re.finditer(rx, text)]
+
+
+INLINE = [(p, c) for p in USER_PAGES for c in _inline_commands(p.read_text(encoding="utf-8"))]
+
+
+def _flags(command: str) -> set[str]:
+    """Every option string of ``command``'s parser (its subcommands' too)."""
+    parser = build_parser(only=command)
+    sub = next(a for a in parser._actions if a.dest == "command")
+    flags: set[str] = set()
+    stack = [sub.choices[command]]  # type: ignore[attr-defined]
+    while stack:
+        p = stack.pop()
+        for action in p._actions:
+            flags.update(action.option_strings)
+            if getattr(action, "choices", None) and isinstance(action.choices, dict):
+                stack.extend(action.choices.values())
+    return flags
+
+
+@pytest.mark.parametrize(("page", "command"), INLINE, ids=[f"{_name(p)}: {c[:60]}" for p, c in INLINE])
+def test_every_inline_command_names_real_flags(page: Path, command: str) -> None:
+    """Prose names commands with placeholders (``--seed S``): their command and every flag must exist."""
+    argv = command.split()
+    used = {a.split("=", 1)[0].strip("[]") for a in argv if a.lstrip("[").startswith("--")}
+    unknown = sorted(used - _flags(argv[0]))
+    assert unknown == [], f"{_name(page)}: `cv2x-marl {command}` names unknown flags {unknown}"
+
+
 def test_the_readme_quick_start_runs_as_written(capsys: pytest.CaptureFixture[str]) -> None:
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     quick = readme.split("## Quick start", 1)[1]

@@ -88,7 +88,6 @@ def test_episode_seeds_stream_the_derived_seeds() -> None:
     [
         (["--max-step", "1e5"], rf"max_step_m=100000.0; allowed: finite number > 0 and <= {PAPER_DIAGONAL}"),
         (["--max-step", "600"], r"max_step_m=600.0: .*36,012,001 points \(about 2.0 GB\)"),
-        (["--max-cycles", "1e9"], r"max_cycles=1000000000; allowed: integer in \[1, 10000\]"),
         (["--episodes", "1e9"], rf"--episodes 1,000,000,000 x 1 mover.*lower --episodes to at most {MAX_ROWS:,}"),
         (["--vs-optimum", "--max-step", "30"], r"the optimum policy .* 2.5 m grid: 5,764,801 points"),
         (["--policy", "optimum", "--max-step", "30"], r"the optimum policy .* 2.5 m grid: 5,764,801 points"),

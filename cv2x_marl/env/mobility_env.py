@@ -35,8 +35,10 @@ from cv2x_marl.sim.ground_truth import PairGeometry
 from cv2x_marl.sim.road import Road
 
 FloatArray = NDArray[np.float64]
-#: options the env derives rather than copies: ``max_step_m`` (a float), ``max_drift_m`` (traffic mode's default)
-_DERIVED = ("max_step_m", "max_drift_m")
+#: options whose attribute of the same name the env holds itself: ``config`` (the resolved scenario), ``model`` (the
+#: loaded two-distance model; the option is ``model_name``), ``max_step_m`` (a float), ``max_drift_m`` (traffic
+#: mode's default)
+_OWN_ATTRIBUTES = ("config", "model", "max_step_m", "max_drift_m")
 
 
 def check_copies(env: MobilityEnv, copies: int) -> None:
@@ -81,7 +83,10 @@ class MobilityEnv(ParallelEnv):
 
     def __init__(self, options: EnvOptions | None = None, **kwargs: Any) -> None:
         if options is not None and not isinstance(options, EnvOptions):
-            raise ValueError(f"invalid env argument options={options!r}; allowed: an EnvOptions or None")
+            raise ValueError(
+                f"invalid env argument options={options!r}; allowed: an EnvOptions or None (the options are keyword "
+                "arguments: MobilityEnv(preset='paper', ...))"
+            )
         opts = options if options is not None else EnvOptions.from_mapping(kwargs)
         if options is not None and kwargs:
             raise ValueError(f"pass options or keyword arguments, not both (got {', '.join(kwargs)} too)")
@@ -97,12 +102,8 @@ class MobilityEnv(ParallelEnv):
                 "per episode (open populations, where vehicles enter and leave, are for the simulator: "
                 "cv2x-marl simulate, docs/mobility.md)"
             )
-        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`); each is also an attribute (plain
-        #: instance attributes: the step reads them often) unless the class derives it (``max_step_m``, ...)
+        #: the validated options (:class:`~cv2x_marl.env.options.EnvOptions`); each is also a read-only attribute
         self.options = opts
-        self.__dict__.update(
-            (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.name not in _DERIVED
-        )
         self.config = cfg
         self.n = cfg.n_vehicles
         #: the horizon in force (steps): ``max_cycles`` or a shorter Gymnasium ``TimeLimit`` (v3's time left)
@@ -149,7 +150,7 @@ class MobilityEnv(ParallelEnv):
         self._live: set[str] = set()
         self._fig: Any = None
 
-    if TYPE_CHECKING:  # the options are attributes (set in __init__ from the schema, not restated here)
+    if TYPE_CHECKING:  # the options are read-only attributes (set on the class from the schema, not restated here)
 
         def __getattr__(self, name: str) -> Any: ...
 
@@ -318,4 +319,21 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
+def _option_attribute(name: str) -> property:
+    """``env.<name>``: the option, read-only (an option is fixed at construction: a new value is a new env)."""
+
+    def get(env: MobilityEnv) -> Any:
+        return getattr(env.options, name)
+
+    def refuse(env: MobilityEnv, value: Any) -> None:
+        raise AttributeError(
+            f"{name} is an option of the env, fixed at construction; make a new env with {name}={value!r}"
+        )
+
+    return property(get, refuse, doc=f"The ``{name}`` option (read-only).")
+
+
+for _field in dataclasses.fields(EnvOptions):
+    if _field.name not in _OWN_ATTRIBUTES:
+        setattr(MobilityEnv, _field.name, _option_attribute(_field.name))
 MobilityEnv.__init__.__signature__ = options_signature()  # type: ignore[attr-defined]  # help() lists every option

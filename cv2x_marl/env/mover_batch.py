@@ -41,7 +41,7 @@ from cv2x_marl.env.mover_kernels import (
     StepOutputs,
     mover_steps,
 )
-from cv2x_marl.env.options import EPISODE_ROLES, options_with_role
+from cv2x_marl.env.options import option_names
 from cv2x_marl.env.step import BASE_PREV, JAIN, N_SCALARS, PRR, PRR0, U0, U_BEST, U_NOW, U_PREV, U_START, U
 from cv2x_marl.sim import kernels
 
@@ -268,9 +268,9 @@ class MoverBatch:
 
 #: env methods that change a copy's episode: through a batch they would leave its stacks stale
 EPISODE_METHODS = ("reset", "step", "step_mover")
-#: env options every copy of a batch must share (every option an episode is made of, by role): the batch reads
-#: them once (its kernel constants)
-SHARED_OPTIONS = options_with_role(*EPISODE_ROLES)
+#: env options every copy of a batch must share: all of them (the copies of a batch are one env; the batch reads the
+#: options once, its kernel constants, and a kept start's infos depend on the run options too)
+SHARED_OPTIONS = option_names()
 #: env attributes not to be set on a batched copy: the shared options, what is derived from them and what they load
 BATCH_ATTRIBUTES = (*SHARED_OPTIONS, "options", "layout", "mover_mask", "box_m", "model", "links")
 

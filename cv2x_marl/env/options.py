@@ -564,6 +564,26 @@ def options_signature() -> inspect.Signature:
     return inspect.Signature(params)
 
 
+def flag_spec(name: str) -> dict[str, Any]:
+    """What a command-line flag of option ``name`` needs, from the schema: its type (``int``, ``float`` or ``str``),
+    range (``lo``, ``lo_open``, ``hi``), choices, default, unit, meaning and allowed values in words
+    (:mod:`cv2x_marl.cli.env_flags` holds these as plain data, checked equal, so the CLI starts without numpy)."""
+    f = {x.name: x for x in dataclasses.fields(EnvOptions)}[name]
+    tp, optional = schema.base_type(typing.get_type_hints(EnvOptions)[name])
+    meta = f.metadata
+    return {
+        "type": tp.__name__,
+        "lo": meta["lo"],
+        "lo_open": bool(meta["lo_open"]),
+        "hi": meta["hi"],
+        "choices": list(meta["choices"]) if meta["choices"] else None,
+        "default": f.default,
+        "unit": meta["unit"],
+        "doc": meta["doc"],
+        "allowed": allowed_text(f, tp, optional),
+    }
+
+
 def options_with_role(*roles: str) -> tuple[str, ...]:
     """The names of the options whose role is one of ``roles`` (:data:`ROLES`), in the schema's order."""
     unknown = [r for r in roles if r not in ROLES]
@@ -572,8 +592,8 @@ def options_with_role(*roles: str) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(EnvOptions) if f.metadata["role"] in roles)
 
 
-#: the options an episode is made of (every role but ``run``): the start cache's key and what the copies of a
-#: batch must share (:func:`cv2x_marl.env.starts.start_key`, :func:`cv2x_marl.env.mover_batch.batch_signature`)
+#: the options an episode is made of (every role but ``run``): the start cache's key
+#: (:func:`cv2x_marl.env.starts.start_key`)
 EPISODE_ROLES = ("start", "observation", "action", "reward")
 #: the options a saved policy keeps, so it is evaluated on what it was trained to see and do
 #: (:func:`cv2x_marl.experiments.evaluate.saved_env`): its observation and its actions, not its reward

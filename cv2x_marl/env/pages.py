@@ -59,7 +59,8 @@ def _movers(spec: EnvSpec) -> str:
     return {
         "arguments": "every vehicle is an agent and moves (`movers` limits who moves)",
         "vehicle0": "vehicle 0 moves; the other vehicles stay where the scenario puts them",
-        "vehicle0-default": "vehicle 0 is the agent (Gymnasium; in PettingZoo `movers=None` makes every vehicle one)",
+        "vehicle0-default": "vehicle 0 moves (the Gymnasium agent); in PettingZoo every vehicle is an agent and "
+        "`movers=None` makes every vehicle move",
     }[spec.movers]
 
 
@@ -133,7 +134,8 @@ def _start_section(env: MobilityEnv) -> list[str]:
         what = "the simulator after its warm-up; the vehicles drive on (lane model) while the episode runs"
     return [
         f"`reset(seed=s)`: {what}. Scenario: preset `{env.options.preset}`, {cfg.n_vehicles} vehicles. The seed "
-        "draws the scenario (density, placement, SPS state), so an episode is a function of its seed; the "
+        "draws the scenario (placement and SPS state, the density where the preset draws it), so an episode is a "
+        "function of its seed; the "
         "benchmark's held-out lists are `cv2x_marl.env.tasks.TASKS[...].heldout_seeds`."
         + (" The shadowing follows the vehicles as they move (`shadow_field`)." if env.options.shadow_field else "")
     ]
@@ -201,8 +203,9 @@ def _policies_section(spec: EnvSpec) -> list[str]:
         "    obs, rewards, terms, truncs, infos = env.step(policy.act(obs))",
         "```",
         "",
-        f"Scored on the task's held-out episodes: `cv2x-marl evaluate --env {spec.env_id} --policy gbmu --policy "
-        f"{task.ceiling} --seeds heldout` ([the benchmark](../benchmark.md)). From a Gymnasium env, "
+        f"Scored on the task's held-out episodes against its ceiling: `cv2x-marl evaluate --env {spec.env_id} "
+        "--policy gbmu --seeds heldout --vs-optimum`; every method at once: `cv2x-marl benchmark --tasks "
+        f"{task.name} --out runs/bench` ([the benchmark](../benchmark.md)). From a Gymnasium env, "
         "`env.unwrapped.par` is its parallel env.",
     ]
 

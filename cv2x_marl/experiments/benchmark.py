@@ -376,7 +376,7 @@ def run_benchmark(
 def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overwrite_help: str) -> None:
     """The ``cv2x-marl benchmark`` flags (``count``: the CLI's integer >= 1 type)."""
     p.add_argument("--out", type=Path, required=True, help="run folder: benchmark.csv, summary.json, table.md, .png")
-    p.add_argument("--tasks", help="tasks, comma-separated (default: every task: singlemover, cooperative)")
+    p.add_argument("--tasks", help="tasks, comma-separated (default: every task of the benchmark, docs/benchmark.md)")
     p.add_argument("--methods", help="scripted methods, comma-separated (default: each task's; the ceiling always)")
     p.add_argument(
         "--model",

@@ -3,6 +3,7 @@ allowed ones, version defaults, ranges and choices named in the messages)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -65,3 +66,38 @@ def test_python_api_types() -> None:
     assert opts.max_cycles == 3 and opts.overrides == ("sim.warmup_subframes=200",)
     with pytest.raises(ValueError, match=r"invalid env argument max_cycles=3\.0"):
         EnvOptions(max_cycles=3.0)
+
+
+def test_the_roles_say_what_a_start_and_a_saved_policy_depend_on() -> None:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+    from cv2x_marl.env.mover_batch import batch_signature
+    from cv2x_marl.env.options import EPISODE_ROLES, POLICY_ROLES, ROLES, options_with_role
+    from cv2x_marl.env.starts import START_OPTIONS, start_key
+
+    assert set(options_with_role(*ROLES)) == {f.name for f in dataclasses.fields(EnvOptions)}
+    assert set(options_with_role("run")) == {"render_mode", "reset_cache", "start_pool", "episode_metrics"}
+    assert {"observation", "max_step_m", "speed_command"} <= set(options_with_role(*POLICY_ROLES))
+    assert not {"reward", "local_ratio", "start_pool"} & set(options_with_role(*POLICY_ROLES))
+    assert set(START_OPTIONS) == set(options_with_role(*EPISODE_ROLES)) - {"preset", "overrides", "config"}
+    with pytest.raises(ValueError, match="unknown option role"):
+        options_with_role("dynamics")
+    fast = {"overrides": ["sim.warmup_subframes=200"], "movers": [0]}
+    base = MobilityEnv(**fast)
+    run_only = MobilityEnv(**fast, episode_metrics=True, reset_cache=3)
+    reward = MobilityEnv(**fast, reward_form="improvement")
+    # a start does not depend on how the env runs, but on everything an episode is made of
+    assert start_key(base, 7) == start_key(run_only, 7)
+    assert start_key(base, 7) != start_key(reward, 7)
+    # the copies of one batch are one env: every option counts (a kept start's infos depend on episode_metrics)
+    assert batch_signature(base) != batch_signature(run_only)
+    assert batch_signature(base) == batch_signature(MobilityEnv(**fast))
+
+
+def test_an_option_is_a_read_only_attribute_of_the_env() -> None:
+    from cv2x_marl.env.mobility_env import MobilityEnv
+
+    env = MobilityEnv(overrides=["sim.warmup_subframes=200"], reward="mixed", local_ratio=0.25)
+    assert (env.reward, env.local_ratio, env.max_cycles, env.reward_kind) == ("mixed", 0.25, 100, "mixed")
+    with pytest.raises(AttributeError, match="local_ratio is an option of the env, fixed at construction"):
+        env.local_ratio = 1.0
+    assert env.options.local_ratio == 0.25
