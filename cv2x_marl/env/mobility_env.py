@@ -110,8 +110,6 @@ class MobilityEnv(ParallelEnv):
         self.horizon = opts.max_cycles
         #: the drift bound in force (m; traffic mode: 10 m unless set); :attr:`drift_m` is the kernels' (inf: none)
         self.max_step_m = float(opts.max_step_m)  # m
-        #: the ``reward`` and ``model`` options under the names the policies read
-        self.reward_kind, self.model_name = opts.reward, opts.model
         self.max_drift_m = opts.max_drift_m if opts.max_drift_m is not None or opts.mode == "snapshot" else 10.0
         self.drift_m = np.inf if self.max_drift_m is None else float(self.max_drift_m)
         self.possible_agents = [f"vehicle_{i}" for i in range(self.n)]
@@ -153,6 +151,16 @@ class MobilityEnv(ParallelEnv):
     if TYPE_CHECKING:  # the options are read-only attributes (set on the class from the schema, not restated here)
 
         def __getattr__(self, name: str) -> Any: ...
+
+    @property
+    def reward_kind(self) -> str:
+        """The ``reward`` option."""
+        return self.options.reward
+
+    @property
+    def model_name(self) -> str:
+        """The ``model`` option (``env.model`` is the two-distance model it names, once loaded)."""
+        return self.options.model
 
     @property
     def drives(self) -> bool:
@@ -319,18 +327,29 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
+#: options that shape the env's spaces, parts or agents at construction: setting one is refused (a new value is a new
+#: env); the others can be set on a live env (PettingZoo's API test sets ``max_cycles``), checked by the schema
+STRUCTURAL_OPTIONS = (
+    "preset", "overrides", "mode", "movers", "n_neighbours", "scale_m", "observation", "privileged", "action_mode",
+    "traffic_action", "speed_command", "drive_observation", "episode_metrics",
+)  # fmt: skip
+
+
 def _option_attribute(name: str) -> property:
-    """``env.<name>``: the option, read-only (an option is fixed at construction: a new value is a new env)."""
+    """``env.<name>``: the option (``env.options.<name>``); setting it checks the new value with the schema and
+    replaces the env's options, unless the option is one of :data:`STRUCTURAL_OPTIONS`."""
 
     def get(env: MobilityEnv) -> Any:
         return getattr(env.options, name)
 
-    def refuse(env: MobilityEnv, value: Any) -> None:
-        raise AttributeError(
-            f"{name} is an option of the env, fixed at construction; make a new env with {name}={value!r}"
-        )
+    def put(env: MobilityEnv, value: Any) -> None:
+        if name in STRUCTURAL_OPTIONS:
+            raise AttributeError(
+                f"{name} shapes the env's spaces and parts, fixed at construction; make a new env with {name}={value!r}"
+            )
+        env.options = dataclasses.replace(env.options, **{name: value})
 
-    return property(get, refuse, doc=f"The ``{name}`` option (read-only).")
+    return property(get, put, doc=f"The ``{name}`` option.")
 
 
 for _field in dataclasses.fields(EnvOptions):

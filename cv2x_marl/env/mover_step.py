@@ -97,7 +97,7 @@ def step_mover(env: EpisodeEnv, action: Any) -> tuple[NDArray[np.float32], float
     env.utility[i] = u
     assert env.geometry is not None
     step_core.move_geometry(i, pos, env.period_m, env.geometry.disp_m, env.geometry.dist2_m2)
-    reward = env.rewarder.step_mover(i, u)
+    reward = env.rewarder.step_mover(env, i, u)
     env.observer.after_reward_mover(env, i, u, count)
     done = env.t >= env.max_cycles
     obs = env.build(env.mover_rows)

@@ -425,7 +425,7 @@ class EnvOptions:
                 refuse(f.name, value, allowed_text(f, tp, optional))
         if self.render_mode not in (None, *RENDER_MODES):
             refuse("render_mode", self.render_mode, "None | rgb_array | human")
-        if self.observation not in VERSION_BLOCKS or isinstance(self.observation, bool):  # the registered versions
+        if not is_int(self.observation) or self.observation not in VERSION_BLOCKS:  # the registered versions
             refuse("observation", self.observation, " | ".join(str(v) for v in VERSION_BLOCKS))
         if self.config is not None and not isinstance(self.config, ScenarioConfig):
             refuse("config", self.config, "null or a ScenarioConfig")

@@ -29,30 +29,26 @@ class RewardModel:
     """The rewards of one env (built once from its options).
 
     Attributes:
-        kind: the ``reward`` option.
-        improvement: ``reward_form="improvement"``.
         previous: [N] each agent's reward base after the last step (the improvement form's reference).
     """
 
     def __init__(self, options: EnvOptions) -> None:
-        self.kind = options.reward
-        self.local_ratio = options.local_ratio
-        self.team_objective = options.team_objective
-        self.improvement = options.reward_form == "improvement"
         self.previous: FloatArray = np.zeros(0)
 
     def base(self, env: EpisodeEnv, u: FloatArray) -> FloatArray:
-        """[N] the reward's base of utilities ``u`` [N] (what the ``utility`` form returns)."""
-        if self.kind == "individual":
+        """[N] the reward's base of utilities ``u`` [N] (what the ``utility`` form returns); the options are read
+        from the env at each call (a live env's reward options can be set)."""
+        o = env.options
+        if o.reward == "individual":
             return u
-        if self.kind == "difference":
+        if o.reward == "difference":
             return difference_rewards(
                 env.links, env.positions_m, env.start_m, env.mover_mask, env.p_min, env.normalise_reward
             )
-        team = np.full_like(u, (u if self.team_objective == "utility" else env.prr).mean())
-        if self.kind == "team":
+        team = np.full_like(u, (u if o.team_objective == "utility" else env.prr).mean())
+        if o.reward == "team":
             return team
-        return self.local_ratio * u + (1.0 - self.local_ratio) * team
+        return o.local_ratio * u + (1.0 - o.local_ratio) * team
 
     def reset(self, env: EpisodeEnv) -> None:
         """At the episode's start: the reference of the first step's improvement."""
@@ -60,9 +56,11 @@ class RewardModel:
 
     def step(self, env: EpisodeEnv) -> FloatArray:
         """[N] the rewards of the step just taken (:func:`~cv2x_marl.env.step.step_rewards`)."""
-        return step_core.step_rewards(self.base(env, env.utility), self.previous, self.improvement)
+        improvement = env.options.reward_form == "improvement"
+        return step_core.step_rewards(self.base(env, env.utility), self.previous, improvement)
 
-    def step_mover(self, i: int, u: float) -> float:
+    def step_mover(self, env: EpisodeEnv, i: int, u: float) -> float:
         """The reward of agent ``i`` (individual reward) after a step of it alone with utility ``u``."""
-        reward, self.previous[i] = step_core.step_reward(u, self.previous[i], self.improvement)
+        improvement = env.options.reward_form == "improvement"
+        reward, self.previous[i] = step_core.step_reward(u, self.previous[i], improvement)
         return float(reward)

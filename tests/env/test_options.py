@@ -93,11 +93,21 @@ def test_the_roles_say_what_a_start_and_a_saved_policy_depend_on() -> None:
     assert batch_signature(base) == batch_signature(MobilityEnv(**fast))
 
 
-def test_an_option_is_a_read_only_attribute_of_the_env() -> None:
+def test_an_option_is_an_attribute_of_the_env_checked_when_set() -> None:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
-    env = MobilityEnv(overrides=["sim.warmup_subframes=200"], reward="mixed", local_ratio=0.25)
-    assert (env.reward, env.local_ratio, env.max_cycles, env.reward_kind) == ("mixed", 0.25, 100, "mixed")
-    with pytest.raises(AttributeError, match="local_ratio is an option of the env, fixed at construction"):
-        env.local_ratio = 1.0
-    assert env.options.local_ratio == 0.25
+    env = MobilityEnv(overrides=["sim.warmup_subframes=200"], reward="mixed", local_ratio=0.25, max_cycles=3)
+    assert (env.reward, env.local_ratio, env.max_cycles, env.reward_kind) == ("mixed", 0.25, 3, "mixed")
+    env.reset(seed=0)
+    env.local_ratio = 1.0  # the mixed reward is then the own utility alone, from the next step on
+    env.reward_form = "utility"
+    _, rewards, *_ = env.step({a: [0.0, 0.0] for a in env.agents})
+    assert env.options.local_ratio == 1.0
+    assert rewards["vehicle_3"] == env.utility[3]
+    with pytest.raises(ValueError, match=r"invalid env argument local_ratio=2.0; allowed: finite number in \[0, 1\]"):
+        env.local_ratio = 2.0
+    with pytest.raises(AttributeError, match="observation shapes the env's spaces and parts, fixed at construction"):
+        env.observation = 3
+    env.max_cycles = 2  # PettingZoo's API test shortens episodes this way
+    _, _, _, truncs, _ = env.step({a: [0.0, 0.0] for a in env.agents})
+    assert all(truncs.values()) and env.agents == []
