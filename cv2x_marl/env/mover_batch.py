@@ -119,7 +119,7 @@ class MoverBatch:
     def _constants(self, env: MobilityEnv) -> tuple[LinkConstants, StepConstants, ObservationConstants]:
         """The kernel arguments every copy shares (links, options, layout, model), from a reset env."""
         (period, _los, _gain, wb1, range2, _idx, _val, _noise, model, per_sinr, per, thr, sens, _t) = (
-            env.links._kernel_args
+            env.links.kernel_args
         )
         links = LinkConstants(period, wb1, float(range2), int(model), per_sinr, per, float(thr), float(sens))
         steps = StepConstants(
@@ -162,10 +162,10 @@ class MoverBatch:
         self.target[k] = env.target
         self.p[k] = env.link_p
         row = env.links.mover_row(i, env.positions_m)
-        args = row._args
-        self.los_row[k] = args[3]
-        self.gain_row_db[k] = args[4]
-        self.level_db[k] = kernels.levels_db(args[7], args[8])
+        args = row.args
+        self.los_row[k] = args.los_row
+        self.gain_row_db[k] = args.gain_row_db
+        self.level_db[k] = kernels.levels_db(args.interference_mw, args.noise_mw)
         s = self.scalars[k]
         s[U], s[U0], s[PRR], s[PRR0], s[JAIN] = env.utility[i], env.u0[i], env.prr[i], env.prr0[i], env.jain[i]
         s[BASE_PREV] = env.rewarder.previous[i]

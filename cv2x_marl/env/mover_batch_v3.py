@@ -119,18 +119,18 @@ class V3Stacks:
         self.rng_state[k] = state_of(m.rng)
         self.rx_dbm[k] = env.rx_dbm
         links = env.links
-        args = links._kernel_args
+        args = links.kernel_args
         self.eirp_dbm = float(links.eirp_dbm)
         self.noise_mw = float(links.noise_mw)
-        self.los[k] = args[1]
-        idx, val = args[5], args[6]
+        self.los[k] = args.los
+        idx, val = args.interferer_idx, args.interferer_val
         widened(self, "idx", idx.shape[1], -1)
         widened(self, "val", val.shape[1], 0.0)
         self.idx[k] = -1
         self.val[k] = 0.0
         self.idx[k, :, : idx.shape[1]] = idx
         self.val[k, :, : val.shape[1]] = val
-        self.gain_col_db[k] = args[2][:, mover]
+        self.gain_col_db[k] = args.gain_db[:, mover]
         self.shadow_col_db[k] = links.shadow_db[:, mover]
         cfg = env.config
         slot, sub = np.divmod(env.resource, cfg.sps.n_subchannels)

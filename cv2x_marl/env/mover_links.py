@@ -47,10 +47,10 @@ class MoverLinksStep:
         self.mover = int(mover)
         self.column = column
         self.row = links.mover_row(self.mover, positions_m)
-        args = links._kernel_args
+        args = links.kernel_args
         i = self.mover
-        self._gain_row = self.row._args[4][None, :]  # [1, N] without a field: the snapshot's row
-        self._gain_col = np.ascontiguousarray(args[2][:, i])
+        self._gain_row = self.row.args.gain_row_db[None, :]  # [1, N] without a field: the snapshot's row
+        self._gain_col = np.ascontiguousarray(args.gain_db[:, i])
         self._shadow_col = np.ascontiguousarray(links.shadow_db[:, i])
         self._eirp = float(links.eirp_dbm)
         (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = args

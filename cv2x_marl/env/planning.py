@@ -413,10 +413,10 @@ def measured_row(env: PlanningEnv, mover: int) -> Any:
     gain = np.full((n, n), float(links.eirp_dbm))
     gain[i, :] = gain[:, i] = links.eirp_dbm - shadow
     row = MoverRow(links, i, pos)
-    (period, los, _gain, wb1, range2, idx, val, *_rest) = links._kernel_args
+    (period, los, _gain, wb1, range2, idx, val, *_rest) = links.kernel_args
     gain = np.ascontiguousarray(gain)
     interference = kernels.mover_interference(pos, period, los, gain, wb1, range2, idx, val, i)
-    row._args = (*row._args[:4], np.ascontiguousarray(gain[i]), *row._args[5:7], interference, *row._args[8:])
+    row.args = row.args._replace(gain_row_db=np.ascontiguousarray(gain[i]), interference_mw=interference)
     return row
 
 

@@ -77,7 +77,7 @@ class TeamObjective:
         """Take ``positions_m`` [N, 2] (m) as the current positions; returns ``J`` there."""
         links = self.links
         self.positions_m = np.array(positions_m, dtype=np.float64)
-        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links._kernel_args
+        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links.kernel_args
         self._gain = links.gain_db(self.positions_m)
         rx_dbm, rx_mw, term, total = team_terms(
             self.positions_m, period, los, self._gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens,
@@ -111,7 +111,7 @@ class TeamObjective:
             rows = self.field_rows(mover, cand) if field_db is None else field_db
             g_out = np.ascontiguousarray(links.eirp_dbm - rows)
             g_in = g_out
-        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links._kernel_args
+        (period, los, _g, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, target) = links.kernel_args
         return team_move_objective(
             cand, int(mover), g_out, g_in, self.positions_m, period, los, wb1, range2, idx, val, noise, model,
             per_sinr, per, thr, sens, target, self.weight, self.p_min, *self._state,

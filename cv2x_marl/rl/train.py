@@ -42,7 +42,7 @@ from cv2x_marl.rl.train_config import (  # noqa: F401 - re-exported: the configu
     RUN_KEYS,
     PpoConfig,
     TrainConfig,
-    _check_count,
+    check_count,
     env_arguments,
     load_train_config,
     run_settings,

@@ -83,7 +83,7 @@ class PpoConfig:
         """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
         check_reals(self, "ppo", {**PPO_REALS, "log_std_init": (lambda v: True, "a finite number")})
         for name in ("n_steps", "batch_size", "n_epochs"):
-            object.__setattr__(self, name, _check_count(f"ppo.{name}", getattr(self, name)))
+            object.__setattr__(self, name, check_count(f"ppo.{name}", getattr(self, name)))
         if self.batch_size < 2:  # SB3 normalises the advantages over each mini-batch
             raise TrainError(
                 f"ppo.batch_size must be an integer >= 2 (PPO normalises the advantages over each "
@@ -94,7 +94,7 @@ class PpoConfig:
         if not isinstance(arch, tuple | list) or not arch:
             raise TrainError(f"ppo.net_arch must be {rule}, got {arch!r}")
         try:
-            units = tuple(_check_count("ppo.net_arch", a) for a in arch)
+            units = tuple(check_count("ppo.net_arch", a) for a in arch)
         except TrainError:
             raise TrainError(f"ppo.net_arch must be {rule}, got {list(arch)!r}") from None
         if max(units) > MAX_LAYER_UNITS:
@@ -102,10 +102,10 @@ class PpoConfig:
         object.__setattr__(self, "net_arch", units)
         if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
             raise TrainError(f"ppo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
-        object.__setattr__(self, "encoder_units", _check_count("ppo.encoder_units", self.encoder_units))
+        object.__setattr__(self, "encoder_units", check_count("ppo.encoder_units", self.encoder_units))
         if not isinstance(self.recurrent, bool):
             raise TrainError(f"ppo.recurrent must be true or false, got {self.recurrent!r}")
-        object.__setattr__(self, "lstm_units", _check_count("ppo.lstm_units", self.lstm_units))
+        object.__setattr__(self, "lstm_units", check_count("ppo.lstm_units", self.lstm_units))
         if self.lstm_units > MAX_LAYER_UNITS:
             raise TrainError(f"ppo.lstm_units must be an integer in [1, {MAX_LAYER_UNITS:,}], got {self.lstm_units}")
         if self.encoder_units > MAX_LAYER_UNITS:
@@ -114,7 +114,7 @@ class PpoConfig:
             )
 
 
-def _check_count(name: str, value: Any) -> int:
+def check_count(name: str, value: Any) -> int:
     """``value`` as an int >= 1; a whole float (YAML's ``1e4``) counts, ``1.5`` and bools do not."""
     if isinstance(value, float) and math.isfinite(value) and value.is_integer():
         value = int(value)
@@ -144,7 +144,7 @@ class TrainConfig:
         if self.env_id not in ENV_IDS:
             raise TrainError(f"env_id {self.env_id!r} unknown; ids: {', '.join(ENV_IDS)}")
         for name in ("copies", "checkpoint_every", "eval_every", "eval_episodes"):
-            object.__setattr__(self, name, _check_count(f"train.{name}", getattr(self, name)))
+            object.__setattr__(self, name, check_count(f"train.{name}", getattr(self, name)))
         if self.copies > MAX_COPIES:
             raise TrainError(
                 f"train.copies (--copies) must be an integer in [1, {MAX_COPIES:,}] (each copy holds its own "
@@ -161,7 +161,7 @@ class TrainConfig:
                 f"unknown env argument(s) {bad} in train.env of {self.env_id}; arguments: {', '.join(allowed)}"
             )
         if self.start_pool is not None:
-            object.__setattr__(self, "start_pool", _check_count("train.start_pool", self.start_pool))
+            object.__setattr__(self, "start_pool", check_count("train.start_pool", self.start_pool))
 
     def env_for_training(self) -> dict[str, Any]:
         """The env arguments of training and its evaluation callbacks: ``env`` plus, with a start

@@ -34,9 +34,9 @@ from cv2x_marl.sim.snapshot_links import (  # noqa: F401 - re-exported: ground_t
     MoverRow,
     PairGeometry,
     SnapshotLinks,
-    _refuse_independent_interference,
     mean_rx_dbm,
     pair_geometry,
+    refuse_independent_interference,
     row_index_table,
 )
 from cv2x_marl.units import db_to_linear, noise_power_dbm
@@ -105,7 +105,7 @@ class MoverLinks:
         shadowing field (or None) per snapshot, drawn at the snapshot's positions."""
         if truth_los not in TRUTH_LOS:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
-        _refuse_independent_interference(config)
+        refuse_independent_interference(config)
         road = Road.from_config(config.road)
         n = snapshots[0].positions_m.shape[0]
         b = len(snapshots)

@@ -9,7 +9,7 @@ the pair geometry (:class:`PairGeometry`, :func:`pair_geometry`) and :func:`row_
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +24,7 @@ from cv2x_marl.units import db_to_linear, noise_power_dbm
 FloatArray = NDArray[np.float64]
 
 
-def _refuse_independent_interference(config: ScenarioConfig) -> None:
+def refuse_independent_interference(config: ScenarioConfig) -> None:
     """The evaluators sum the interferers (eq. 8): refuse ``link.interference=independent`` (``validate
     --assumptions model`` only) rather than evaluate links another way than the simulator does."""
     if config.link.interference != "sum":
@@ -87,6 +87,69 @@ def pair_geometry(positions_m: FloatArray, road: Road | None = None) -> PairGeom
     return PairGeometry(disp, disp[0] * disp[0] + disp[1] * disp[1])
 
 
+class LinkKernelArgs(NamedTuple):
+    """The compiled link kernels' arguments after the positions (:func:`cv2x_marl.sim.kernels.snapshot_links`),
+    for N vehicles and G interferer slots.
+
+    Attributes:
+        period_m: [2] the torus of the pair geometry (inf where distances do not wrap).
+        los: [N, N] line of sight of each pair.
+        gain_db: [N, N] EIRP minus the shadowing of each pair (dBm).
+        wb1: the WINNER+ B1 constants (:func:`cv2x_marl.sim.kernels.winner_b1_constants`).
+        range2_m2: the squared link range (m^2; inf: none).
+        interferer_idx, interferer_val: [N, G] each transmitter's interferers and their weights (-1 / 0: none).
+        noise_mw: the noise power (mW).
+        link_model: the link model's code; per_sinr_db, per: its PER table (dB, probability).
+        threshold_db: the SINR threshold (dB); sensitivity_dbm: the receiver sensitivity (dBm; -inf: none).
+        target: [N, N] the target receivers of each transmitter.
+    """
+
+    period_m: FloatArray
+    los: NDArray[np.bool_]
+    gain_db: FloatArray
+    wb1: FloatArray
+    range2_m2: float
+    interferer_idx: NDArray[np.int64]
+    interferer_val: FloatArray
+    noise_mw: float
+    link_model: int
+    per_sinr_db: FloatArray
+    per: FloatArray
+    threshold_db: float
+    sensitivity_dbm: float
+    target: NDArray[np.bool_]
+
+
+class MoverRowArgs(NamedTuple):
+    """The row kernels' arguments after the candidates (:func:`cv2x_marl.sim.kernels.mover_row_success`): one
+    mover's links with the others where they stand.
+
+    Attributes:
+        positions_m: [N, 2] every vehicle's position (m); mover: the mover's index.
+        period_m, wb1, range2_m2, noise_mw, link_model, per_sinr_db, per, threshold_db, sensitivity_dbm: as
+            :class:`LinkKernelArgs`.
+        los_row: [N] line of sight of the mover's links; gain_row_db: [N] (or [M, N] per candidate) their gains.
+        interference_mw: [N] the interference at each receiver from the others (fixed while they stand still).
+        target_row: [N] the mover's target receivers.
+    """
+
+    positions_m: FloatArray
+    mover: int
+    period_m: FloatArray
+    los_row: NDArray[np.bool_]
+    gain_row_db: FloatArray
+    wb1: FloatArray
+    range2_m2: float
+    interference_mw: FloatArray
+    noise_mw: float
+    link_model: int
+    per_sinr_db: FloatArray
+    per: FloatArray
+    threshold_db: float
+    sensitivity_dbm: float
+    target_row: NDArray[np.bool_]
+
+
 class SnapshotLinks:
     """Expected success of every link of a snapshot when any vehicles move (the env's reward).
 
@@ -116,7 +179,7 @@ class SnapshotLinks:
             raise ValueError(f"truth_los must be one of {', '.join(TRUTH_LOS)}, got {truth_los!r}")
         if config.link.model == "rayleigh":
             raise ValueError("SnapshotLinks supports link.model per_table and threshold")
-        _refuse_independent_interference(config)
+        refuse_independent_interference(config)
         self.config = config
         self.road = Road.from_config(config.road)
         self.snapshot = snapshot
@@ -155,17 +218,18 @@ class SnapshotLinks:
         self.compiled = compiled and config.channel.pathloss == "winner_b1" and truth_los != "geometry"
         if self.compiled:
             ch = config.channel
-            self._kernel_args = self._kernel_arguments(
+            #: the compiled kernels' arguments after the positions (:class:`LinkKernelArgs`)
+            self.kernel_args = self._kernel_arguments(
                 kernels.winner_b1_constants(radio.carrier_hz, ch.effective_height_m, ch.min_distance_m)
             )
 
-    def _kernel_arguments(self, wb1: FloatArray) -> tuple:
+    def _kernel_arguments(self, wb1: FloatArray) -> LinkKernelArgs:
         w = self.interference_weight
         idx = row_index_table(w > 0)
         val = np.where(idx >= 0, w[np.arange(self.n)[:, None], idx], 0.0)
         cfg = self.config
         period = self.road.periodic_box_m if self._wrap_road is not None else np.full(2, np.inf)
-        return (
+        return LinkKernelArgs(
             np.asarray(period, dtype=np.float64),
             np.ascontiguousarray(self.los),
             np.ascontiguousarray(self.eirp_dbm - self.shadow_db),
@@ -225,9 +289,9 @@ class SnapshotLinks:
         p, geometry = self.evaluate(pos, shadow)
         if not self.compiled:
             return p, geometry, self.rx_dbm(pos, shadow)
-        args = self._kernel_args
+        a = self.kernel_args
         rx = kernels.pair_rx_dbm(
-            pos, args[0], args[1], self._shadow(pos, shadow), float(self.eirp_dbm), args[3], args[4]
+            pos, a.period_m, a.los, self._shadow(pos, shadow), float(self.eirp_dbm), a.wb1, a.range2_m2
         )
         return p, geometry, rx
 
@@ -245,9 +309,9 @@ class SnapshotLinks:
         if pos.shape != (self.n, 2):
             raise ValueError(f"positions_m must have shape ({self.n}, 2) for this snapshot, got {pos.shape}")
         if self.compiled:
-            args = self._kernel_args
+            args = self.kernel_args
             if self.field is not None:  # the gains at these positions: EIRP - the field's shadowing
-                args = (*args[:2], np.ascontiguousarray(self.eirp_dbm - self._shadow(pos, shadow_db)), *args[3:])
+                args = args._replace(gain_db=np.ascontiguousarray(self.eirp_dbm - self._shadow(pos, shadow_db)))
             disp, dist2, p = kernels.snapshot_links(pos, *args)
             return p, PairGeometry(disp, dist2)
         s_dbm = self.rx_dbm(pos, shadow_db)
@@ -275,7 +339,7 @@ class SnapshotLinks:
         [N, 2]: the snapshot's (``positions_m`` unused) or, with a field, the field's there. Compiled
         path only (the kernels' ``gain_db``)."""
         if self.field is None:
-            return self._kernel_args[2]
+            return self.kernel_args.gain_db
         pos = np.ascontiguousarray(positions_m, dtype=np.float64)
         return np.ascontiguousarray(self.eirp_dbm - self.field.shadow_db(pos))
 
@@ -328,7 +392,7 @@ class SnapshotLinks:
             raise ValueError("sensed_row needs the compiled link kernels (WINNER+ B1, truth_los snapshot or always)")
         pos = self._check_row(mover, positions_m)
         row = MoverRow(self, int(mover), pos, follow_field=False)
-        (period, los, _gain, wb1, range2, idx, val, *_rest) = self._kernel_args
+        (period, los, _gain, wb1, range2, idx, val, *_rest) = self.kernel_args
         gain = self.gain_db(pos)
         own = np.zeros((self.n, self.n), dtype=bool)
         own[mover, :] = own[:, mover] = True
@@ -336,7 +400,7 @@ class SnapshotLinks:
         interference = kernels.mover_interference(
             row.positions_m, period, los, sensed_gain, wb1, range2, idx, val, int(mover)
         )
-        row._args = (*row._args[:7], interference, *row._args[8:])
+        row.args = row.args._replace(interference_mw=interference)
         return row
 
 
@@ -366,10 +430,11 @@ class MoverRow:
         self.target_row = np.ascontiguousarray(links.target[mover])
         self._field = links.field if follow_field else None
         if links.compiled:
-            (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links._kernel_args
+            (period, los, _gain, wb1, range2, idx, val, noise, model, per_sinr, per, thr, sens, _) = links.kernel_args
             gain = links.gain_db(positions_m)  # the interference at each receiver: the field here
             interference = kernels.mover_interference(positions_m, period, los, gain, wb1, range2, idx, val, mover)
-            self._args: tuple[Any, ...] = (
+            #: the row kernels' arguments (:class:`MoverRowArgs`)
+            self.args = MoverRowArgs(
                 positions_m,
                 mover,
                 period,
@@ -391,24 +456,23 @@ class MoverRow:
         """[G, N] the own links' gains: [1, N] (the snapshot's shadowing, or the field where the mover
         stands for the sensing estimate) or [M, N] (the field at each candidate)."""
         if self._field is None:
-            return self._args[4][None, :]
+            return self.args.gain_row_db[None, :]
         return np.ascontiguousarray(self.links.eirp_dbm - self._field.rows_db(self.mover, self.positions_m, cand))
 
-    def _kernel_args(self, cand: FloatArray) -> tuple[Any, ...]:
+    def _row_args(self, cand: FloatArray) -> MoverRowArgs:
         """The arguments of the row kernels after ``candidates_m``, with the gains of :meth:`_gain_rows`."""
-        a = self._args
-        return (*a[:4], self._gain_rows(cand), *a[5:])
+        return self.args._replace(gain_row_db=self._gain_rows(cand))
 
     def success_with_gains(self, candidates_m: FloatArray, gain_rows_db: FloatArray) -> FloatArray:
         """:meth:`success` (compiled) with the own links' gains given: ``gain_rows_db`` [1, N] or [M, N]
         (EIRP minus the shadowing, dBm), e.g. the field's row already read for the step."""
-        return kernels.mover_row_success(candidates_m, *self._args[:4], gain_rows_db, *self._args[5:])  # type: ignore[call-arg]
+        return kernels.mover_row_success(candidates_m, *self.args._replace(gain_row_db=gain_rows_db))
 
     def success(self, candidates_m: FloatArray) -> FloatArray:
         """[M, N] expected success of the mover's links with the mover at each candidate [M, 2] (m)."""
         cand = np.ascontiguousarray(np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2))
         if self.links.compiled:
-            return kernels.mover_row_success(cand, *self._kernel_args(cand))
+            return kernels.mover_row_success(cand, *self._row_args(cand))
         out = np.empty((cand.shape[0], self.links.n))
         pos = self.positions_m.copy()
         for m, c in enumerate(cand):  # reference path (power law, geometry LOS): one evaluation each
@@ -423,12 +487,12 @@ class MoverRow:
         cand = np.asarray(candidates_m, dtype=np.float64).reshape(-1, 2)
         if self.links.compiled and self._field is None:
             c = np.ascontiguousarray(cand)
-            return kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
+            return kernels.mover_row_utility(c, *self._row_args(c), float(p_min))
         out = np.empty(cand.shape[0])
         for lo in range(0, cand.shape[0], chunk):
             c = np.ascontiguousarray(cand[lo : lo + chunk])
             if self.links.compiled:
-                out[lo : lo + chunk] = kernels.mover_row_utility(c, *self._kernel_args(c), float(p_min))  # type: ignore[call-arg]
+                out[lo : lo + chunk] = kernels.mover_row_utility(c, *self._row_args(c), float(p_min))
             else:
                 out[lo : lo + chunk] = kernels.row_utility(self.success(c), self.target_row, p_min)
         return out

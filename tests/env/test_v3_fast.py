@@ -68,8 +68,8 @@ def test_pair_rx_dbm_equals_the_numpy_reference_with_a_cut_off() -> None:
     pos = _moved(env, np.random.default_rng(3), 120.0)
     links = env.links
     shadow = links.field.shadow_db(pos)
-    a = links._kernel_args
-    rx = kernels.pair_rx_dbm(pos, a[0], a[1], shadow, float(links.eirp_dbm), a[3], a[4])
+    a = links.kernel_args
+    rx = kernels.pair_rx_dbm(pos, a.period_m, a.los, shadow, float(links.eirp_dbm), a.wb1, a.range2_m2)
     ref = links.rx_dbm(pos)
     assert np.isneginf(ref).sum() > env.n  # the cut-off is exercised
     assert np.array_equal(np.isneginf(rx), np.isneginf(ref))

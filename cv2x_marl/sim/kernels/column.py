@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from cv2x_marl.sim.kernels.pathloss import winner_b1_pair_db
 from cv2x_marl.sim.kernels.per import _DB_TO_NEPER
-from cv2x_marl.sim.kernels.snapshot import _link_success
+from cv2x_marl.sim.kernels.snapshot import link_success
 
 FloatArray = NDArray[np.float64]
 
@@ -185,7 +185,7 @@ def mover_column(
             if c < 0:
                 break
             interference += interferer_weight[j, g] * at_mover_mw[c]
-        p[j] = _link_success(
+        p[j] = link_success(
             at_mover_dbm[j], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
         )
     return p, rx

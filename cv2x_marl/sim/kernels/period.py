@@ -11,13 +11,13 @@ from numpy.typing import NDArray
 
 from cv2x_marl.interrupts import signals_deferred
 from cv2x_marl.sim.kernels.period_passes import (
-    _chunk_outputs,
-    _commit_tile,
-    _gather_links,
-    _tile_outcomes,
-    _tile_starts,
-    _tile_sums,
-    _vehicle_tiles,
+    chunk_outputs,
+    commit_tile,
+    gather_links,
+    tile_outcomes,
+    tile_starts,
+    tile_sums,
+    vehicle_tiles,
 )
 from cv2x_marl.sim.kernels.period_tuples import (
     ChunkBuffers,
@@ -201,8 +201,8 @@ def _period_chunk(
     rri = n_res // n_sub
     n_tiles = (rri + tile_subframes - 1) // tile_subframes
     width = tile_subframes * n_sub  # resources per tile (the last tile may hold fewer)
-    veh = _vehicle_tiles(active, resource, n_sub, width, tile_subframes)
-    tile_start = _tile_starts(tx, links, subset, n_visit, veh, n_tiles)
+    veh = vehicle_tiles(active, resource, n_sub, width, tile_subframes)
+    tile_start = tile_starts(tx, links, subset, n_visit, veh, n_tiles)
     n_links = tile_start[n_tiles]
     out_tx = np.empty(n_links, dtype=np.int64)
     out_rx = np.empty(n_links, dtype=np.int64)
@@ -218,7 +218,7 @@ def _period_chunk(
     tile_u = np.empty(n_links)  # the PSSCH uniform, then P
     tile_cause = np.empty(n_links, dtype=np.int8)
     sci_sinr = sci_bler.shape[0] > 0
-    _gather_links(
+    gather_links(
         rx, tx, rx_mw, links, subset, n_visit, veh, tile_start, n_tiles, tile_rt, tile_s, tile_u, tile_u_sci,
         sci_sinr, link_rng, sci_rng,
     )  # fmt: skip
@@ -245,18 +245,18 @@ def _period_chunk(
             continue
         res0 = g * width  # the tile's first resource
         n_slots = min(rri, (g + 1) * tile_subframes) - g * tile_subframes
-        _tile_sums(lo, hi, tile_rt, tile_s, veh, sum_t, slot_t, width, tile_subframes, flat)
-        _tile_outcomes(
+        tile_sums(lo, hi, tile_rt, tile_s, veh, sum_t, slot_t, width, tile_subframes, flat)
+        tile_outcomes(
             lo, hi, tile_rt, tile_s, tile_u, tile_u_sci, tile_cause, veh, sum_t, slot_t, sci_t, width,
             tile_subframes, flat, flat_inband_lin, three_gpp, leakage, n_sub, noise_mw, model, per_sinr_db, per,
             lin_lo, lin_hi, threshold_db, thr_lin, sci_sinr, sci_offset_db, sci_sinr_lin, sci_bler, sci_lo, sci_hi,
             sci_gates_pssch, slot, sensitivity_dbm, sens_lin, releasing,
         )  # fmt: skip
-        _commit_tile(
+        commit_tile(
             lo, hi, n, n_slots, res0, n_res, tile_rt, veh, sum_t, slot_t, sci_t, width, tile_subframes, flat,
             three_gpp, leakage, n_sub, leak_row, period_rssi_mw, period_sci_mw,
         )  # fmt: skip
-    return _chunk_outputs(
+    return chunk_outputs(
         rx, tx, distance_m, links, subset, n_visit, n, veh, tile_start, n_tiles, tile_u, tile_cause, out_tx, out_rx,
         p_out, cause_out, bin_m, n_bins, n_causes,
     )  # fmt: skip

@@ -26,7 +26,7 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True)
-def _vehicle_tiles(
+def vehicle_tiles(
     active: NDArray[np.bool_], resource: NDArray[np.int64], n_sub: int, width: int, tile_subframes: int
 ) -> NDArray[np.int32]:
     """[N, 4] per vehicle (no division per link): its tile (-1: not transmitting in the chunk), its resource,
@@ -44,7 +44,7 @@ def _vehicle_tiles(
 
 
 @njit(cache=True)
-def _tile_starts(
+def tile_starts(
     tx: NDArray[np.int64],
     links: NDArray[np.int64],
     subset: bool,
@@ -66,7 +66,7 @@ def _tile_starts(
 
 
 @njit(cache=True)
-def _gather_links(
+def gather_links(
     rx: NDArray[np.int64],
     tx: NDArray[np.int64],
     rx_mw: FloatArray,
@@ -104,7 +104,7 @@ def _gather_links(
 
 
 @njit(cache=True)
-def _tile_sums(
+def tile_sums(
     lo: int,
     hi: int,
     tile_rt: NDArray[np.int32],
@@ -127,7 +127,7 @@ def _tile_sums(
 
 
 @njit(cache=True)
-def _tile_outcomes(
+def tile_outcomes(
     lo: int,
     hi: int,
     tile_rt: NDArray[np.int32],
@@ -220,7 +220,7 @@ def _tile_outcomes(
 
 
 @njit(cache=True)
-def _commit_tile(
+def commit_tile(
     lo: int,
     hi: int,
     n: int,
@@ -288,7 +288,7 @@ def _commit_tile(
 
 
 @njit(cache=True)
-def _chunk_outputs(
+def chunk_outputs(
     rx: NDArray[np.int64],
     tx: NDArray[np.int64],
     distance_m: FloatArray,

@@ -19,7 +19,7 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True)
-def _pair_powers(
+def pair_powers(
     positions_m: FloatArray,
     period_m: FloatArray,
     los: NDArray[np.bool_],
@@ -68,7 +68,7 @@ def _pair_powers(
 
 
 @njit(cache=True)
-def _interference_mw(
+def link_interference_mw(
     rx_mw: FloatArray, interferer_idx: NDArray[np.int64], interferer_weight: FloatArray, tx: int, rx: int
 ) -> float:
     """Interference at ``rx`` on ``tx``'s packet: the weighted powers of tx's interferers, in table order."""
@@ -103,7 +103,7 @@ def success_at_level(
 
 
 @njit(cache=True)
-def _link_success(
+def link_success(
     s_dbm: float,
     interference_mw: float,
     noise_mw: float,
@@ -162,14 +162,14 @@ def snapshot_links(
         p: [N(tx), N(rx)] expected success, 0 off ``target``.
     """
     n = positions_m.shape[0]
-    disp, dist2, rx_dbm, rx_mw = _pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
+    disp, dist2, rx_dbm, rx_mw = pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
     p = np.zeros((n, n))
     for tx in range(n):
         for rx in range(n):
             if not target[tx, rx]:
                 continue
-            interference = _interference_mw(rx_mw, interferer_idx, interferer_weight, tx, rx)
-            p[tx, rx] = _link_success(
+            interference = link_interference_mw(rx_mw, interferer_idx, interferer_weight, tx, rx)
+            p[tx, rx] = link_success(
                 rx_dbm[tx, rx], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
             )
     return disp, dist2, p
@@ -195,10 +195,10 @@ def mover_interference(
     the sums are the same additions in the same order, so the results are bit-identical.
     """
     n = positions_m.shape[0]
-    _, _, _, rx_mw = _pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
+    _, _, _, rx_mw = pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
     out = np.zeros(n)
     for rx in range(n):
-        out[rx] = _interference_mw(rx_mw, interferer_idx, interferer_weight, mover, rx)
+        out[rx] = link_interference_mw(rx_mw, interferer_idx, interferer_weight, mover, rx)
     return out
 
 
@@ -236,7 +236,7 @@ def moved_signal_dbm(
 
 @njit(cache=True)
 def levels_db(interference_mw: FloatArray, noise_mw: float) -> FloatArray:
-    """[N] noise-plus-interference level (dB) of each receiver, as :func:`_link_success` computes it."""
+    """[N] noise-plus-interference level (dB) of each receiver, as :func:`link_success` computes it."""
     out = np.empty(interference_mw.shape[0])
     for j in range(out.shape[0]):
         out[j] = 10.0 * math.log10(interference_mw[j] + noise_mw)

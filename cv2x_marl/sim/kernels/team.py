@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from cv2x_marl.sim.kernels.pathloss import winner_b1_pair_db
 from cv2x_marl.sim.kernels.per import _DB_TO_NEPER
-from cv2x_marl.sim.kernels.snapshot import _interference_mw, _link_success, _pair_powers, success_at_level
+from cv2x_marl.sim.kernels.snapshot import link_interference_mw, link_success, pair_powers, success_at_level
 from cv2x_marl.utility import eq12_term
 
 FloatArray = NDArray[np.float64]
@@ -50,15 +50,15 @@ def team_terms(
     eq. 12 terms [N, N] (0 off ``target``) and ``J`` (arguments as
     :func:`~cv2x_marl.sim.kernels.snapshot.snapshot_links`; ``weight`` [N] the ``w_i``)."""
     n = positions_m.shape[0]
-    _, _, rx_dbm, rx_mw = _pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
+    _, _, rx_dbm, rx_mw = pair_powers(positions_m, period_m, los, gain_db, wb1, range2_m2)
     term = np.zeros((n, n))
     total = 0.0
     for tx in range(n):
         row = 0.0
         for rx in range(n):
             if target[tx, rx]:
-                interference = _interference_mw(rx_mw, interferer_idx, interferer_weight, tx, rx)
-                p = _link_success(
+                interference = link_interference_mw(rx_mw, interferer_idx, interferer_weight, tx, rx)
+                p = link_success(
                     rx_dbm[tx, rx], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
                 )
                 term[tx, rx] = eq12_term(p, p_min)
@@ -119,7 +119,7 @@ def team_move_objective(
     level_row = np.empty(n)
     for j in range(n):
         level_row[j] = 10.0 * math.log10(
-            _interference_mw(rx_mw, interferer_idx, interferer_weight, mover, j) + noise_mw
+            link_interference_mw(rx_mw, interferer_idx, interferer_weight, mover, j) + noise_mw
         )
     out_dbm = np.empty(n)  # mover -> j
     in_dbm = np.empty(n)  # j -> mover
@@ -137,7 +137,7 @@ def team_move_objective(
                 out_mw[j] = 0.0
                 in_mw[j] = 0.0
                 continue
-            # the displacement from the lower to the higher index, as _pair_powers takes it
+            # the displacement from the lower to the higher index, as pair_powers takes it
             if mover < j:
                 dx = positions_m[j, 0] - cx
                 dy = positions_m[j, 1] - cy
@@ -189,7 +189,7 @@ def team_move_objective(
                             pw = rx_mw[c, j]
                         interference += interferer_weight[i, g] * pw
                     s = in_dbm[i] if j == mover else rx_dbm[i, j]
-                    p = _link_success(s, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
+                    p = link_success(s, interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm)
                     row += eq12_term(p, p_min) - term[i, j]
             elif target[i, mover]:  # only the link to the mover: its signal and the interference at it
                 interference = 0.0
@@ -198,7 +198,7 @@ def team_move_objective(
                     if c < 0:
                         break
                     interference += interferer_weight[i, g] * in_mw[c]
-                p = _link_success(
+                p = link_success(
                     in_dbm[i], interference, noise_mw, model, per_sinr_db, per, threshold_db, sensitivity_dbm
                 )
                 row += eq12_term(p, p_min) - term[i, mover]
