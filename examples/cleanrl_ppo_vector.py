@@ -1,4 +1,4 @@
-"""CleanRL-style PPO in plain torch on Gymnasium's ``vector_entry_point`` env (``cv2x/SingleMover-v2``).
+"""CleanRL-style PPO in plain torch on Gymnasium's ``vector_entry_point`` env (``cv2x/SingleMover-v3``).
 
     python examples/cleanrl_ppo_vector.py [--iterations 30] [--num-envs 16] [--seed 0] [--quick]
 
@@ -65,7 +65,7 @@ def main() -> None:
     from cv2x_marl.experiments.evaluate import evaluate
     from cv2x_marl.policies.base import BatchPolicy
 
-    env_kwargs: dict[str, Any] = {"max_cycles": 100, "action_mode": "plan_residual", "reward_form": "utility"}
+    env_kwargs: dict[str, Any] = {"max_cycles": 100}
     if args.quick:
         args.iterations, args.num_envs, args.steps, args.episodes = 1, 4, 16, 1
         env_kwargs.update(max_cycles=8, overrides=["sim.warmup_subframes=200"])
@@ -73,7 +73,7 @@ def main() -> None:
     torch.manual_seed(args.seed)  # the example's own process: seeding torch is the script's choice
     torch.set_num_threads(1)
     envs = gymnasium.make_vec(
-        "cv2x/SingleMover-v2",
+        "cv2x/SingleMover-v3",
         num_envs=args.num_envs,
         vectorization_mode="vector_entry_point",
         autoreset_mode="SameStep",
@@ -138,12 +138,10 @@ def main() -> None:
 
     eval_kwargs = dict(env_kwargs)
     learned = evaluate(
-        "cv2x/SingleMover-v2", BatchPolicy(act, "cleanrl-ppo"), args.episodes, 2026,
+        "cv2x/SingleMover-v3", BatchPolicy(act, "cleanrl-ppo"), args.episodes, 2026,
         env_kwargs=eval_kwargs, progress=False, vs_optimum=True,
     )  # fmt: skip
-    # GBMU acts on its own (offset actions): in a plan_residual env its steps would be added to the plan's
-    plain = {key: v for key, v in eval_kwargs.items() if key != "action_mode"}
-    gbmu = evaluate("cv2x/SingleMover-v2", "gbmu", args.episodes, 2026, env_kwargs=plain, progress=False)
+    gbmu = evaluate("cv2x/SingleMover-v3", "gbmu", args.episodes, 2026, env_kwargs=eval_kwargs, progress=False)
     print(
         f"CleanRL PPO  utility gain {learned['mean_utility_gain']:+.1%}  "
         f"share of the optimum {learned.get('share_of_optimum', float('nan')):.1%}"

@@ -1,4 +1,4 @@
-"""Multi-agent PPO with RLlib on ``cv2x/Mobility-v2``: every vehicle an agent, one shared policy.
+"""Multi-agent PPO with RLlib on ``cv2x/Cooperative-v0``: every vehicle an agent, one shared policy.
 
     python examples/rllib_ppo.py [--iterations 20] [--seed 0] [--quick]
 
@@ -17,16 +17,16 @@ from typing import Any
 
 import numpy as np
 
-ENV_NAME = "cv2x_mobility_v2"
+ENV_NAME = "cv2x_cooperative_v0"
 
 
 def env_creator(env_config: dict[str, Any]) -> Any:
     """RLlib env factory: the package's ParallelEnv in RLlib's PettingZoo wrapper."""
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    from cv2x_marl.env import parallel_env_v2
+    from cv2x_marl.env import parallel_env_cooperative
 
-    return ParallelPettingZooEnv(parallel_env_v2(**env_config))
+    return ParallelPettingZooEnv(parallel_env_cooperative(**env_config))
 
 
 def rllib_actor(module: Any) -> Any:
@@ -57,7 +57,7 @@ def main() -> None:
     from cv2x_marl.parallel import ray_session
     from cv2x_marl.policies.base import BatchPolicy
 
-    env_config: dict[str, Any] = {"max_cycles": 100, "normalise_reward": True, "replan_every": 50}
+    env_config: dict[str, Any] = {"max_cycles": 100}
     iterations, episodes, batch = args.iterations, args.episodes, 4000
     if args.quick:
         env_config.update(max_cycles=5, overrides=["sim.warmup_subframes=200"])
@@ -88,8 +88,8 @@ def main() -> None:
             algo.save_to_path(tmp)  # the checkpoint layout RLlib restores with Algorithm.from_checkpoint
         algo.stop()
     policy = BatchPolicy(rllib_actor(module), "rllib-ppo")
-    learned = evaluate("cv2x/Mobility-v2", policy, episodes, 2026, env_kwargs=env_config, progress=False)
-    gbmu = evaluate("cv2x/Mobility-v2", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
+    learned = evaluate("cv2x/Cooperative-v0", policy, episodes, 2026, env_kwargs=env_config, progress=False)
+    gbmu = evaluate("cv2x/Cooperative-v0", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
     print(f"RLlib PPO  utility gain {learned['mean_utility_gain']:+.1%}  PRR gain {learned['mean_prr_gain']:+.1%}")
     print(f"GBMU       utility gain {gbmu['mean_utility_gain']:+.1%}  PRR gain {gbmu['mean_prr_gain']:+.1%}")
 

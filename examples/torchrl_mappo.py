@@ -1,4 +1,4 @@
-"""MAPPO with TorchRL on ``cv2x/Mobility-v2``: a shared actor, a centralised critic on ``state()``.
+"""MAPPO with TorchRL on ``cv2x/Cooperative-v0``: a shared actor, a centralised critic on ``state()``.
 
     python examples/torchrl_mappo.py [--iterations 20] [--seed 0] [--quick]
 
@@ -52,18 +52,18 @@ def main() -> None:
     from torchrl.modules import MLP, MultiAgentMLP, ProbabilisticActor, TanhNormal
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-    from cv2x_marl.env import parallel_env_v2
+    from cv2x_marl.env import parallel_env_cooperative
     from cv2x_marl.experiments.evaluate import evaluate
     from cv2x_marl.policies.base import BatchPolicy
 
     torch.manual_seed(args.seed)  # the example's own process: seeding torch is the script's choice
-    env_config: dict[str, Any] = {"max_cycles": 100, "normalise_reward": True, "replan_every": 50}
+    env_config: dict[str, Any] = {"max_cycles": 100}
     iterations, episodes, frames, minibatch, epochs = args.iterations, args.episodes, 2000, 400, 5
     if args.quick:
         env_config.update(max_cycles=5, overrides=["sim.warmup_subframes=200"])
         iterations, episodes, frames, minibatch, epochs = 1, 1, 20, 10, 1
 
-    pz = parallel_env_v2(**env_config)
+    pz = parallel_env_cooperative(**env_config)
     agents = list(pz.possible_agents)
     env = PettingZooWrapper(
         pz, return_state=True, group_map={GROUP: agents}, use_mask=False, categorical_actions=False, seed=args.seed
@@ -135,8 +135,8 @@ def main() -> None:
     collector.shutdown()
 
     policy = BatchPolicy(torchrl_actor(actor_net), "torchrl-mappo")
-    learned = evaluate("cv2x/Mobility-v2", policy, episodes, 2026, env_kwargs=env_config, progress=False)
-    gbmu = evaluate("cv2x/Mobility-v2", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
+    learned = evaluate("cv2x/Cooperative-v0", policy, episodes, 2026, env_kwargs=env_config, progress=False)
+    gbmu = evaluate("cv2x/Cooperative-v0", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
     print(f"TorchRL MAPPO  utility gain {learned['mean_utility_gain']:+.1%}  PRR gain {learned['mean_prr_gain']:+.1%}")
     print(f"GBMU           utility gain {gbmu['mean_utility_gain']:+.1%}  PRR gain {gbmu['mean_prr_gain']:+.1%}")
 

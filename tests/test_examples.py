@@ -14,25 +14,28 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.mark.parametrize(
     ("script", "expect"),
     [
-        ("env_quickstart.py", ["SingleMover-v2, one episode", "share of the optimum 100%"]),
+        (
+            "env_quickstart.py",
+            ["SingleMover-v3, one GBMU episode", "Cooperative-v0, one random episode", "share of the ceiling 100%"],
+        ),
         ("sb3_ppo.py", ["PPO (256 steps)", "gbmu", "sensing"]),
-        # GBMU on the one held-out episode (seed 2026) of 8 steps is deterministic: +10.0 % utility gain
+        # GBMU on the one held-out episode (seed 2026) of 8 steps is deterministic: -6.9 % utility gain
         (
             "cleanrl_ppo_vector.py",
             [
-                "SingleMoverVectorEnv of cv2x/SingleMover-v2 with 4 copies, batched step: True",
+                "SingleMoverVectorEnv of cv2x/SingleMover-v3 with 4 copies, batched step: True",
                 "iteration 1:",
-                "GBMU         utility gain +10.0%",
+                "GBMU         utility gain -6.9%",
             ],
         ),
-        # GBMU on the one held-out episode (seed 2026) is deterministic: +11.3 % utility gain
+        # GBMU on the one episode (seed 2026) of Cooperative-v0 is deterministic: +4.1 % team utility gain
         (
             "rllib_ppo.py",
-            ["iteration 1: mean episode return", "RLlib PPO  utility gain", "GBMU       utility gain +11.3%"],
+            ["iteration 1: mean episode return", "RLlib PPO  utility gain", "GBMU       utility gain +4.1%"],
         ),
         (
             "torchrl_mappo.py",
-            ["iteration 1: mean step reward", "TorchRL MAPPO  utility gain", "GBMU           utility gain +11.3%"],
+            ["iteration 1: mean step reward", "TorchRL MAPPO  utility gain", "GBMU           utility gain +4.1%"],
         ),
     ],
 )
