@@ -13,7 +13,6 @@ keeps the episode state and the PettingZoo plumbing; :mod:`cv2x_marl.env.mover_s
 
 from __future__ import annotations
 
-import dataclasses
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -29,7 +28,8 @@ from cv2x_marl.env.infos import DRIVE_INFO_KEYS, EPISODE_INFO_KEYS, INFO_KEYS, g
 from cv2x_marl.env.observation import ObservationLayout, build_observations, co_channel_table
 from cv2x_marl.env.observation_fills import fill_drive
 from cv2x_marl.env.observation_models import OwnState, observation_model
-from cv2x_marl.env.options import EnvOptions, options_signature
+from cv2x_marl.env.option_attributes import install_options
+from cv2x_marl.env.options import EnvOptions
 from cv2x_marl.env.rewards import RewardModel
 from cv2x_marl.sim.ground_truth import PairGeometry
 from cv2x_marl.sim.road import Road
@@ -327,32 +327,4 @@ class MobilityEnv(ParallelEnv):
             self._fig = None
 
 
-#: options that shape the env's spaces, parts or agents at construction: setting one is refused (a new value is a new
-#: env); the others can be set on a live env (PettingZoo's API test sets ``max_cycles``), checked by the schema
-STRUCTURAL_OPTIONS = (
-    "preset", "overrides", "mode", "movers", "n_neighbours", "scale_m", "observation", "privileged", "action_mode",
-    "traffic_action", "speed_command", "drive_observation", "episode_metrics",
-)  # fmt: skip
-
-
-def _option_attribute(name: str) -> property:
-    """``env.<name>``: the option (``env.options.<name>``); setting it checks the new value with the schema and
-    replaces the env's options, unless the option is one of :data:`STRUCTURAL_OPTIONS`."""
-
-    def get(env: MobilityEnv) -> Any:
-        return getattr(env.options, name)
-
-    def put(env: MobilityEnv, value: Any) -> None:
-        if name in STRUCTURAL_OPTIONS:
-            raise AttributeError(
-                f"{name} shapes the env's spaces and parts, fixed at construction; make a new env with {name}={value!r}"
-            )
-        env.options = dataclasses.replace(env.options, **{name: value})
-
-    return property(get, put, doc=f"The ``{name}`` option.")
-
-
-for _field in dataclasses.fields(EnvOptions):
-    if _field.name not in _OWN_ATTRIBUTES:
-        setattr(MobilityEnv, _field.name, _option_attribute(_field.name))
-MobilityEnv.__init__.__signature__ = options_signature()  # type: ignore[attr-defined]  # help() lists every option
+install_options(MobilityEnv, _OWN_ATTRIBUTES)
