@@ -30,6 +30,7 @@ LAYERS: dict[str, int] = {
     "cv2x_marl.utility": 0,
     "cv2x_marl.schema": 0,
     "cv2x_marl.stats": 0,
+    "cv2x_marl.docstrings": 0,
     "cv2x_marl.config": 1,
     "cv2x_marl.config_sections": 1,
     "cv2x_marl.sim": 2,

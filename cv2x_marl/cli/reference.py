@@ -7,10 +7,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
-import re
 import sys
 
 from cv2x_marl.cli import COMMANDS, build_parser
+from cv2x_marl.docstrings import summary
 
 #: the help's width: fixed, so the page does not depend on the terminal
 WIDTH = 100
@@ -75,14 +75,6 @@ API: dict[str, tuple[str, ...]] = {
 }
 
 
-def _markdown(doc: str | None) -> str:
-    """The first paragraph of a docstring, its reStructuredText roles and literals as Markdown code."""
-    para = inspect.cleandoc(doc or "").split("\n\n", 1)[0]
-    line = " ".join(part.strip() for part in para.splitlines())
-    line = re.sub(r":\w+:`~?([^`]+)`", lambda m: f"`{m.group(1).rsplit('.', 1)[-1]}`", line)
-    return line.replace("``", "`")
-
-
 def api() -> str:
     """``docs/api.md``: each public object's signature and what it does (its docstring's first paragraph)."""
     lines = [
@@ -104,7 +96,7 @@ def api() -> str:
             except (TypeError, ValueError):
                 sig = ""
             kind = "class " if inspect.isclass(obj) else ""
-            lines += ["", f"### {kind}`{name}{sig}`", "", _markdown(obj.__doc__) or "(no docstring)"]
+            lines += ["", f"### {kind}`{name}{sig}`", "", summary(obj.__doc__) or "(no docstring)"]
     return "\n".join(lines) + "\n"
 
 

@@ -137,7 +137,7 @@ class MobilityEnv(ParallelEnv):
         self.own: OwnState | None = None
         self.observer = observation_model(self)
         self.dynamics = dynamics_model(self)
-        self.rewarder = RewardModel(opts)
+        self.rewarder = RewardModel()
         self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)

@@ -20,19 +20,18 @@ from cv2x_marl.env.team_search import difference_rewards
 
 if TYPE_CHECKING:
     from cv2x_marl.env.episode import EpisodeEnv
-    from cv2x_marl.env.options import EnvOptions
 
 FloatArray = NDArray[np.float64]
 
 
 class RewardModel:
-    """The rewards of one env (built once from its options).
+    """The rewards of one env (its options read from the env at each step).
 
     Attributes:
         previous: [N] each agent's reward base after the last step (the improvement form's reference).
     """
 
-    def __init__(self, options: EnvOptions) -> None:
+    def __init__(self) -> None:
         self.previous: FloatArray = np.zeros(0)
 
     def base(self, env: EpisodeEnv, u: FloatArray) -> FloatArray:
