@@ -1,4 +1,5 @@
-"""``cv2x-marl train``: train PPO movers (SB3, parameter sharing) or MAPPO (TorchRL, algo: mappo)."""
+"""``cv2x-marl train``: train PPO movers (SB3, parameter sharing), MAPPO (TorchRL, algo: mappo) or a learned
+utility map (algo: utility-map)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ from cv2x_marl.cli.common import (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", default=None, choices=ENV_CHOICES)
-    p.add_argument("--algo", default=None, help="ppo | mappo (default: the --config file's algo, else ppo)")
+    p.add_argument(
+        "--algo", default=None, help="ppo | mappo | utility-map (default: the --config file's algo, else ppo)"
+    )
     p.add_argument(
         "--timesteps",
         type=COUNT,
@@ -40,10 +43,15 @@ def run(args: argparse.Namespace) -> int:
     from cv2x_marl.rl.mappo_config import config_algo
     from cv2x_marl.rl.train import load_train_config, run_settings, train
 
-    if config_algo(args.config, args.algo) == "mappo":  # docs/rl.md, "MAPPO"
+    algo = config_algo(args.config, args.algo)
+    if algo == "mappo":  # docs/rl.md, "MAPPO"
         from cv2x_marl.rl.mappo import cli_train
 
         return cli_train(args, DEFAULT_TIMESTEPS, print_json)
+    if algo == "utility-map":  # docs/rl.md, "The learned utility map"
+        from cv2x_marl.rl.utility_map import cli_train as map_train
+
+        return map_train(args, DEFAULT_TIMESTEPS, print_json)
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
     from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", DEFAULT_TIMESTEPS)

@@ -9,8 +9,10 @@
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
-    ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save); a ``.pt``
-                        file: :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor)
+    ppo:PATH            a learned model file ``cv2x-marl train`` writes: :class:`~cv2x_marl.policies.ppo.PpoPolicy`
+                        (a stable-baselines3 save, ``.zip``); :class:`~cv2x_marl.policies.mappo.MappoPolicy`
+                        (a MAPPO actor, ``.pt``); :class:`~cv2x_marl.policies.utility_map.UtilityMapPolicy`
+                        (a learned utility map, ``.npz``)
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
 :mod:`cv2x_marl.policies.baselines`.
@@ -28,6 +30,7 @@ from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+from cv2x_marl.policies.utility_map import UtilityMapPolicy, is_map_file
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
 
 if TYPE_CHECKING:
@@ -123,7 +126,10 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         path = Path(raw)
         if path.is_dir():
             raise ValueError(
-                f"policy {spec}: {path} is a folder; give the model file in it (model.zip for PPO, model.pt for MAPPO)"
+                f"policy {spec}: {path} is a folder; give the model file in it (model.zip for PPO, model.pt for "
+                "MAPPO, model.npz for a utility map)"
             )
+        if is_map_file(path):
+            return UtilityMapPolicy(path, env)
         return MappoPolicy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

@@ -31,7 +31,7 @@ from cv2x_marl.rl.train_config import MAX_COPIES, PPO_REALS, check_reals, env_ar
 from cv2x_marl.yamlcore import load_mapping
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
-ALGOS = ("ppo", "mappo")
+ALGOS = ("ppo", "mappo", "utility-map")
 #: the env ids MAPPO trains on: every vehicle moves and the reward is the team's, so one critic value per
 #: env step (on ``state()``) serves every agent
 MAPPO_ENV_IDS = ("cv2x/Cooperative-v0",)
