@@ -21,15 +21,20 @@ import numpy as np
 GROUP = "vehicles"
 
 
-def torchrl_actor(actor_net: Any) -> Any:
-    """The shared actor's deterministic action (the TanhNormal's mode) for a batch of observations."""
+def torchrl_actor(actor_net: Any, n_agents: int) -> Any:
+    """The shared actor's deterministic action (the TanhNormal's mode) for one vehicle's observation [1, obs].
+
+    TorchRL's ``MultiAgentMLP`` takes exactly ``n_agents`` rows, so the row is repeated ``n_agents`` times: the
+    action then reads this vehicle's observation alone, whoever else is in the step (``BatchPolicy``'s rule).
+    """
 
     def act(obs: np.ndarray) -> np.ndarray:
         import torch
 
         with torch.no_grad():
-            loc, _ = actor_net(torch.from_numpy(obs)[None])  # [1, n_agents, 2]
-        return torch.tanh(loc[0]).numpy()
+            rows = torch.from_numpy(obs).expand(n_agents, -1)[None]  # [1, n_agents, obs]: the one row repeated
+            loc, _ = actor_net(rows)  # [1, n_agents, 2]
+        return torch.tanh(loc[0, :1]).numpy()
 
     return act
 
@@ -134,7 +139,7 @@ def main() -> None:
         print(f"iteration {i + 1}: mean step reward {reward:.3f}")
     collector.shutdown()
 
-    policy = BatchPolicy(torchrl_actor(actor_net), "torchrl-mappo")
+    policy = BatchPolicy(torchrl_actor(actor_net, n_agents), "torchrl-mappo")
     learned = evaluate("cv2x/Cooperative-v0", policy, episodes, 2026, env_kwargs=env_config, progress=False)
     gbmu = evaluate("cv2x/Cooperative-v0", "gbmu", episodes, 2026, env_kwargs=env_config, progress=False)
     print(f"TorchRL MAPPO  utility gain {learned['mean_utility_gain']:+.1%}  PRR gain {learned['mean_prr_gain']:+.1%}")

@@ -4,7 +4,8 @@
 format tag, the env id, the actor's keyword arguments and weights (and the critic's, unused here). The actor
 class is :class:`cv2x_marl.policies.mappo_nets.SharedActor` (this layer's: the trainer, :mod:`cv2x_marl.rl.mappo`,
 builds its actor from it too), imported when a file is loaded (torch is an extra). It acts deterministically:
-``tanh`` of the Gaussian's mean.
+``tanh`` of the Gaussian's mean, on one agent's observation at a time (the batch-invariance rule of
+:mod:`cv2x_marl.policies.base`: an agent's action is a function of its own observation alone, bit for bit).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cv2x_marl.extras import require
-from cv2x_marl.policies.base import BatchPolicy
+from cv2x_marl.policies.base import BatchPolicy, one_torch_thread
 from cv2x_marl.runs import check_file
 
 if TYPE_CHECKING:
@@ -33,7 +34,10 @@ def is_mappo_file(path: str | Path) -> bool:
 
 
 class MappoPolicy(BatchPolicy):
-    """A MAPPO shared actor acting deterministically for every agent present.
+    """A MAPPO shared actor acting deterministically for every agent present, each on its own observation alone.
+
+    The actor runs once per agent on ``[1, obs_size]`` (:class:`~cv2x_marl.policies.base.BatchPolicy`'s rule): an
+    agent's action does not depend, to the last bit, on how many agents act in the step or what they observe.
 
     Args:
         path: the ``model.pt`` of a MAPPO run folder.
@@ -44,7 +48,8 @@ class MappoPolicy(BatchPolicy):
     """
 
     def __init__(self, path: str | Path, env: MobilityEnv | None = None) -> None:
-        super().__init__(self._predict, "mappo")
+        # _predict runs the actor one row at a time itself (one no_grad and one tensor for the step)
+        super().__init__(self._predict, "mappo", row_by_row=False)
         path = Path(path)
         if not path.exists():
             raise ValueError(f"MAPPO model file {path} does not exist")
@@ -76,6 +81,8 @@ class MappoPolicy(BatchPolicy):
                 )
 
     def _predict(self, obs: np.ndarray) -> np.ndarray:
-        """[n_agents, obs_size] -> [n_agents, 2] in [-1, 1]."""
-        with self._torch.no_grad():
-            return self.actor.deterministic(self._torch.from_numpy(np.ascontiguousarray(obs))).numpy()
+        """[n, obs_size] -> [n, 2] in [-1, 1]: the actor on each row alone (a batch of one, ``[1, obs_size]``)."""
+        with self._torch.no_grad(), one_torch_thread():
+            rows = self._torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+            acts = [self.actor.deterministic(rows[i : i + 1]) for i in range(rows.shape[0])]
+            return self._torch.cat(acts).numpy() if acts else np.zeros((0, 2), dtype=np.float32)

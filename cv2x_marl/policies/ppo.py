@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cv2x_marl.extras import require
-from cv2x_marl.policies.base import BatchPolicy
+from cv2x_marl.policies.base import Actions, BatchPolicy, Observations, one_torch_thread
 from cv2x_marl.runs import check_file
 
 if TYPE_CHECKING:
@@ -32,9 +32,14 @@ def _is_recurrent_save(path: Path) -> bool:
 class PpoPolicy(BatchPolicy):
     """A stable-baselines3 PPO model (shared across agents) acting deterministically.
 
+    The network runs on one agent's observation at a time (``model.predict`` on ``[1, obs_dim]``, the rule of
+    :mod:`cv2x_marl.policies.base`): an agent's action is a function of its own observation alone, bit for bit,
+    whatever the other agents of the step. A one-mover env (``cv2x/SingleMover-v3``, ``cv2x/Traffic-v1``) always
+    ran it so.
+
     A recurrent model (``ppo.recurrent: true``: sb3-contrib's ``RecurrentPPO``) keeps one LSTM state per
-    agent over the episode, from zeros at :meth:`reset`, as it was trained (``episode_start`` at the first
-    step).
+    agent over the episode, from zeros at :meth:`reset` (and for an agent first seen later), as it was trained
+    (``episode_start`` at an agent's first step); each agent's step is its own batch of one too.
 
     Args:
         path: the ``.zip`` written by ``cv2x-marl train`` (or any SB3 PPO / RecurrentPPO save).
@@ -68,23 +73,29 @@ class PpoPolicy(BatchPolicy):
                 )
 
         self.recurrent = hasattr(self.model.policy, "lstm_actor")
-        self._lstm_state: Any = None
-        self._starts: np.ndarray | None = None
+        #: a recurrent model's LSTM state per agent (sb3-contrib's (h, c), each [layers, 1, units])
+        self._lstm_states: dict[str, Any] = {}
 
     def reset(self, seed: int | None = None) -> None:
         """A new episode: a recurrent model's LSTM states start from zeros."""
-        self._lstm_state = None
-        self._starts = None
+        self._lstm_states = {}
+
+    def act(self, observations: Observations) -> Actions:
+        """Each agent's action from its own observation (and, recurrent, its own LSTM state), a batch of one."""
+        with one_torch_thread():
+            if not self.recurrent:
+                return super().act(observations)
+            out: Actions = {}
+            for agent, ob in observations.items():
+                state = self._lstm_states.get(agent)
+                row = np.asarray(ob, dtype=np.float32).reshape(1, -1)
+                act, self._lstm_states[agent] = self.model.predict(
+                    row, state=state, episode_start=np.array([state is None]), deterministic=True
+                )
+                out[agent] = np.asarray(act, dtype=np.float32).reshape(2)
+            return out
 
     def _predict(self, obs: np.ndarray) -> np.ndarray:
-        if not self.recurrent:
-            act, _ = self.model.predict(obs, deterministic=True)
-            return np.asarray(act)
-        n = obs.shape[0]
-        if self._starts is None or self._starts.shape[0] != n:  # first step (or the agents changed)
-            self._lstm_state, self._starts = None, np.ones(n, dtype=bool)
-        act, self._lstm_state = self.model.predict(
-            obs, state=self._lstm_state, episode_start=self._starts, deterministic=True
-        )
-        self._starts = np.zeros(n, dtype=bool)
+        """[1, obs_dim] -> [1, 2] (a stateless model)."""
+        act, _ = self.model.predict(obs, deterministic=True)
         return np.asarray(act)

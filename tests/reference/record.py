@@ -8,7 +8,13 @@ the data is that the refactored code is compared with the code before it.
     PYTHONPATH=$PWD python tests/reference/record.py env prr         # some parts only
     PYTHONPATH=$PWD python tests/reference/record.py parts           # test_references_parts.py's cases, recorded
                                                                      # at 265a803, before the env-as-parts refactor
+    PYTHONPATH=$PWD python tests/reference/record.py heldout=multi-ppo0,multi-ppo1   # some held-out rows only
     PYTHONPATH=$PWD python benchmarks/check_references.py --record   # the full held-out tables (~30 min)
+
+Recorded again on purpose since: the ``multi-ppo0`` ... ``multi-ppo4`` rows of ``heldout_slice.json`` and of
+``heldout/`` (``benchmarks/check_references.py --record --only multi-ppo0 ...``), when the learned policies came
+to run their networks on one agent's observation at a time (the batch-invariance rule of
+``cv2x_marl.policies.base``; the 21 movers of ``cv2x/Mobility-v2`` had been one batch).
 
 The cases themselves (env ids, options, seeds, presets, policies) are defined in ``test_references.py``
 next to this file, which replays them; this script only writes what they give.
@@ -55,14 +61,19 @@ def record_prr() -> None:
     (t.DATA / "prr.json").write_text(json.dumps(doc, indent=1) + "\n")
 
 
-def record_heldout() -> None:
-    runs = {}
+def record_heldout(only: list[str] | None = None) -> None:
+    """Every held-out row, or those named in ``only`` (the others kept as recorded)."""
+    path = t.DATA / "heldout_slice.json"
+    runs = json.loads(path.read_text())["runs"] if only else {}
+    wanted = {name: args for name, args in t.heldout_runs().items() if not only or name in only}
+    if only and sorted(wanted) != sorted(only):
+        raise SystemExit(f"no held-out rows {sorted(set(only) - set(wanted))}; rows: {', '.join(t.heldout_runs())}")
     with tempfile.TemporaryDirectory() as tmp:
-        for name, args in t.heldout_runs().items():
+        for name, args in wanted.items():
             t0 = time.perf_counter()
             runs[name] = {"args": args, **t.evaluate_run(args, Path(tmp) / name)}
             print(f"heldout {name}: {time.perf_counter() - t0:.1f} s", flush=True)
-    (t.DATA / "heldout_slice.json").write_text(json.dumps({"runs": runs}, indent=1) + "\n")
+    path.write_text(json.dumps({"runs": runs}, indent=1) + "\n")
 
 
 def record_parts() -> None:
@@ -86,6 +97,9 @@ def main() -> None:
     t.DATA.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault(t.SUMO_ENV, tempfile.mkdtemp(prefix="sumo-cache-"))
     for part in parts:
+        if part.startswith("heldout="):
+            record_heldout(part.split("=", 1)[1].split(","))
+            continue
         {"env": record_env, "prr": record_prr, "heldout": record_heldout, "parts": record_parts}[part]()
 
 

@@ -40,8 +40,9 @@ def test_same_seed_same_parameters_and_resume_keeps_the_recurrent_model(tmp_path
 
 
 def test_the_policy_carries_one_lstm_state_per_agent_over_an_episode(tmp_path: Path) -> None:
-    """PpoPolicy's actions equal RecurrentPPO.predict fed its own states, episode_start at the first step;
-    reset() starts from zeros again; a plain PPO save stays a plain (stateless) policy."""
+    """PpoPolicy's actions equal RecurrentPPO.predict fed each agent's row alone with that agent's own state
+    (a batch of one, the batch-invariance rule), episode_start at the first step; reset() starts from zeros
+    again; a plain PPO save stays a plain (stateless) policy."""
     train(TINY, 32, seed=1, run_dir=tmp_path / "r", progress=False)
     policy = PpoPolicy(tmp_path / "r" / "model.zip")
     assert policy.recurrent
@@ -50,19 +51,27 @@ def test_the_policy_carries_one_lstm_state_per_agent_over_an_episode(tmp_path: P
     for episode in range(2):
         obs, _ = env.reset(seed=11)
         policy.reset(seed=episode)
-        state, starts = None, np.ones(len(obs), dtype=bool)
+        alone = PpoPolicy(tmp_path / "r" / "model.zip")
+        states: dict[str, object] = dict.fromkeys(obs)
         first_step = True
         while env.agents:
             acts = policy.act(obs)
-            batch = np.stack([obs[a] for a in obs])
-            want, state = model.predict(batch, state=state, episode_start=starts, deterministic=True)
-            starts = np.zeros(len(obs), dtype=bool)
-            np.testing.assert_array_equal(np.stack([acts[a] for a in obs]), np.asarray(want, dtype=np.float32))
+            assert len(obs) > 1  # several agents, each its own batch of one
+            for a in obs:
+                row = obs[a][None]
+                want, states[a] = model.predict(
+                    row, state=states[a], episode_start=np.array([first_step]), deterministic=True
+                )
+                np.testing.assert_array_equal(acts[a], np.asarray(want, dtype=np.float32).reshape(2))
+            # a policy that sees the first agent alone acts for it as among the others
+            first = next(iter(obs))
+            np.testing.assert_array_equal(alone.act({first: obs[first]})[first], acts[first])
             if not first_step:  # the memory matters: without its state the same observations act otherwise
+                batch = np.stack([obs[a] for a in obs])
                 stateless, _ = model.predict(
                     batch, state=None, episode_start=np.ones(len(obs), bool), deterministic=True
                 )
-                assert not np.array_equal(stateless, want)
+                assert not np.array_equal(stateless, np.stack([acts[a] for a in obs]))
             first_step = False
             obs, *_ = env.step(acts)
     plain = dataclasses.replace(TINY, ppo=dataclasses.replace(TINY.ppo, recurrent=False))
