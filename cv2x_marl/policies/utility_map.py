@@ -10,10 +10,12 @@ best one. The score of a candidate ``c`` is the predicted eq. 12 utility per tar
 where ``f_j(c)`` (:data:`LINK_FEATURES`) describes the link from ``c`` to neighbour ``j`` with what the
 observation carries (the CAM positions, the co-channel vehicles around ``j`` from the SCIs, the RSRP
 measured from ``j`` where the mover stands). Lengths enter as ``log10(m) / 3``; a pair's *corridor
-offset* ``min(|dx|, |dy|)`` tells on a street grid whether two vehicles share a street (line of sight). ``u`` lies in ``(ln p_min, 0)`` like a link's
-``ln max(P, p_min)``. The network is trained by :mod:`cv2x_marl.rl.utility_map` by regression on the own
-utility the observation carries (the running sum of the env's rewards) at the positions the mover visits:
-nothing privileged, no expert. This module is numpy only (the base install runs a trained map).
+offset* ``min(|dx|, |dy|)`` tells on a street grid whether two vehicles share a street (line of sight),
+and the street-grid (WINNER+ B1 NLOS) path loss reads both legs of the path. ``u`` lies in
+``(ln p_min, 0)`` like a link's ``ln max(P, p_min)``. The network is trained by
+:mod:`cv2x_marl.rl.utility_map` by regression on the own utility the observation carries (the running sum
+of the env's rewards) at the positions the mover visits: nothing privileged, no expert. This module is
+numpy only (the base install runs a trained map).
 
 Acting: every ``replan_every`` steps the policy searches its map over the reachable square (a
 ``grid x grid`` grid over ``[-reach, reach]^2`` around the mover, then ``refine x refine`` grids of a third

@@ -41,7 +41,7 @@ ENCODERS = ("mlp", "deepsets", "attention")
 MAX_UNITS = 65_536
 
 
-def _count(name: str, value: Any, low: int = 1) -> int:
+def count_at_least(name: str, value: Any, low: int = 1) -> int:
     """``value`` as an int >= ``low`` (a whole float such as YAML's ``1e4`` counts; bools do not)."""
     if isinstance(value, float) and value.is_integer():
         value = int(value)
@@ -50,15 +50,16 @@ def _count(name: str, value: Any, low: int = 1) -> int:
     return int(value)
 
 
-def _layers(name: str, value: Any) -> tuple[int, ...]:
-    rule = f"a non-empty list of integers in [1, {MAX_UNITS:,}] (units per hidden layer)"
+def hidden_layers(name: str, value: Any, max_units: int = MAX_UNITS) -> tuple[int, ...]:
+    """``value`` as units per hidden layer: a non-empty list of integers in [1, ``max_units``]."""
+    rule = f"a non-empty list of integers in [1, {max_units:,}] (units per hidden layer)"
     if not isinstance(value, tuple | list) or not value:
         raise TrainError(f"{name} must be {rule}, got {value!r}")
     try:
-        units = tuple(_count(name, v) for v in value)
+        units = tuple(count_at_least(name, v) for v in value)
     except TrainError:
         raise TrainError(f"{name} must be {rule}, got {list(value)!r}") from None
-    if max(units) > MAX_UNITS:
+    if max(units) > max_units:
         raise TrainError(f"{name} must be {rule}, got {list(value)!r}")
     return units
 
@@ -93,11 +94,11 @@ class MappoSettings:
     def __post_init__(self) -> None:
         check_reals(self, "mappo", {**PPO_REALS, "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]")})
         for name in ("n_epochs", "minibatch_steps", "encoder_units"):
-            object.__setattr__(self, name, _count(f"mappo.{name}", getattr(self, name)))
+            object.__setattr__(self, name, count_at_least(f"mappo.{name}", getattr(self, name)))
         if self.encoder_units > MAX_UNITS:
             raise TrainError(f"mappo.encoder_units must be an integer in [1, {MAX_UNITS:,}], got {self.encoder_units}")
         for name in ("actor_net", "critic_net"):
-            object.__setattr__(self, name, _layers(f"mappo.{name}", getattr(self, name)))
+            object.__setattr__(self, name, hidden_layers(f"mappo.{name}", getattr(self, name)))
         if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
             raise TrainError(f"mappo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
 
@@ -130,10 +131,10 @@ class MappoConfig:
                 "team reward); other ids train with algo: ppo"
             )
         for name in ("copies", "eval_every", "checkpoint_every", "eval_episodes"):
-            object.__setattr__(self, name, _count(f"train.{name}", getattr(self, name)))
+            object.__setattr__(self, name, count_at_least(f"train.{name}", getattr(self, name)))
         if self.copies > MAX_COPIES:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
-        object.__setattr__(self, "eval_seed", _count("train.eval_seed", self.eval_seed, low=0))
+        object.__setattr__(self, "eval_seed", count_at_least("train.eval_seed", self.eval_seed, low=0))
         if not isinstance(self.env, dict):
             raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
         allowed = env_arguments(self.env_id)

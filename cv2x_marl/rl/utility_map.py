@@ -27,6 +27,7 @@ streams of one ``SeedSequence``).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -39,7 +40,6 @@ from cv2x_marl.checks import is_int
 from cv2x_marl.io import write_json
 from cv2x_marl.policies.utility_map import (
     LINK_FEATURES,
-    STATIC_FEATURES,
     UtilityMap,
     UtilityMapPolicy,
     check_map_env,
@@ -47,19 +47,13 @@ from cv2x_marl.policies.utility_map import (
     static_features,
 )
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
 from cv2x_marl.rl.train_config import MAX_COPIES, check_reals, env_arguments, read_sections, with_cli_values
 
 #: the env ids the map trains on (observation version 3, one mover in a snapshot)
 MAP_ENV_IDS = ("cv2x/SingleMover-v3",)
+#: the widest hidden layer of ``map.hidden`` (the map is evaluated at every candidate and neighbour)
 MAX_UNITS = 4096
-
-
-def _count(name: str, value: Any, low: int = 1) -> int:
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if not is_int(value) or value < low:
-        raise TrainError(f"{name} must be an integer >= {low}, got {value!r}")
-    return int(value)
 
 
 @dataclass(frozen=True)
@@ -100,15 +94,10 @@ class MapSettings:
             },
         )
         for name in ("fit_steps", "batch_size", "grid", "refine", "top", "replan_every", "ensemble"):
-            object.__setattr__(self, name, _count(f"map.{name}", getattr(self, name)))
-        object.__setattr__(self, "random_iterations", _count("map.random_iterations", self.random_iterations, low=0))
-        rule = f"a non-empty list of integers in [1, {MAX_UNITS}]"
-        if not isinstance(self.hidden, list | tuple) or not self.hidden:
-            raise TrainError(f"map.hidden must be {rule}, got {self.hidden!r}")
-        units = tuple(_count("map.hidden", v) for v in self.hidden)
-        if max(units) > MAX_UNITS:
-            raise TrainError(f"map.hidden must be {rule}, got {list(self.hidden)!r}")
-        object.__setattr__(self, "hidden", units)
+            object.__setattr__(self, name, count_at_least(f"map.{name}", getattr(self, name)))
+        explore_first = count_at_least("map.random_iterations", self.random_iterations, low=0)
+        object.__setattr__(self, "random_iterations", explore_first)
+        object.__setattr__(self, "hidden", hidden_layers("map.hidden", self.hidden, MAX_UNITS))
 
 
 @dataclass(frozen=True)
@@ -131,7 +120,7 @@ class MapConfig:
         if self.env_id not in MAP_ENV_IDS:
             raise TrainError(f"env_id {self.env_id!r}: the utility map trains on {', '.join(MAP_ENV_IDS)}")
         for name in ("copies", "eval_every", "eval_episodes"):
-            object.__setattr__(self, name, _count(f"train.{name}", getattr(self, name)))
+            object.__setattr__(self, name, count_at_least(f"train.{name}", getattr(self, name)))
         if self.copies > MAX_COPIES:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
         if not isinstance(self.env, dict):
@@ -172,7 +161,7 @@ class _Network:
         import torch
 
         sizes = [len(LINK_FEATURES), *hidden, 1]
-        self.layers = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in zip(sizes[:-1], sizes[1:], strict=True))
+        self.layers: list[Any] = [torch.nn.Linear(a, b) for a, b in itertools.pairwise(sizes)]
         with torch.no_grad():
             for layer in self.layers:
                 bound = 1.0 / math.sqrt(layer.in_features)
@@ -220,9 +209,7 @@ class _Store:
         self.utility.append(flat[:, layout.size - 6].reshape(c, t1).astype(np.float32))
 
     def arrays(self) -> tuple[np.ndarray, ...]:
-        return tuple(
-            np.concatenate(x) for x in (self.static, self.rel_m, self.target, self.drift_m, self.utility)
-        )
+        return tuple(np.concatenate(x) for x in (self.static, self.rel_m, self.target, self.drift_m, self.utility))
 
 
 def pair_features(rel_m: Any, offsets_m: Any) -> Any:
@@ -282,12 +269,12 @@ class _MapRun:
         self.env_seed = int(streams[1].generate_state(1)[0] % (2**31))
         self.torch_gen = torch.Generator().manual_seed(int(streams[2].generate_state(1)[0]))
         try:
-            self.vec = gymnasium.make_vec(
+            self.vec: Any = gymnasium.make_vec(
                 cfg.env_id, num_envs=cfg.copies, vectorization_mode="vector_entry_point", **cfg.env
             )
         except (ValueError, TypeError) as exc:
             raise TrainError(f"train.env of {cfg.env_id}: {exc}") from exc
-        par = self.vec.get_attr("par")[0]
+        par = self.vec.unwrapped.get_attr("par")[0]
         try:
             check_map_env(par)
         except ValueError as exc:
@@ -476,5 +463,6 @@ def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
             f"trained the utility map on {record['timesteps']} agent-steps ({record['iterations']} iterations) in "
             f"{record['cpu_s']:.1f} CPU-s; training-list utility gain {record['final_eval_utility_gain']:+.1%}"
         )
-        print(f"wrote {args.out / 'model.npz'}, curve.csv, curve.png (evaluate with --policy ppo:{args.out / 'model.npz'})")
+        model = args.out / "model.npz"
+        print(f"wrote {model}, curve.csv, curve.png (evaluate with --policy ppo:{model})")
     return 0

@@ -117,10 +117,11 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     got = (back.p_min, back.grid, back.refine, back.top, back.replan_every, back.switch_margin, back.info)
     assert got == (0.01, 11, 5, 2, 4, 0.25, {"seed": 3})
     offsets = rng.uniform(-300, 300, size=(1, 9, 2))
-    np.testing.assert_array_equal(back.utility(scene_obs(), LAYOUT, offsets), umap.utility(scene_obs(), LAYOUT, offsets))
+    obs = scene_obs()
+    np.testing.assert_array_equal(back.utility(obs, LAYOUT, offsets), umap.utility(obs, LAYOUT, offsets))
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     assert not is_map_file(tmp_path / "bad.npz")
-    with pytest.raises(ValueError, match="cannot load the utility map .*bad.npz"):
+    with pytest.raises(ValueError, match=r"cannot load the utility map .*bad\.npz"):
         UtilityMap.load(tmp_path / "bad.npz")
 
 

@@ -11,9 +11,9 @@ import pytest
 
 pytest.importorskip("torch")
 
-from cv2x_marl.policies.utility_map import UtilityMap  # noqa: E402
-from cv2x_marl.rl.errors import TrainError  # noqa: E402
-from cv2x_marl.rl.utility_map import MapConfig, MapSettings, load_map_config, train_map  # noqa: E402
+from cv2x_marl.policies.utility_map import UtilityMap
+from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.utility_map import MapConfig, MapSettings, load_map_config, train_map
 
 
 def write(path: Path, text: str) -> Path:
@@ -26,7 +26,7 @@ def write(path: Path, text: str) -> Path:
     [
         ("algo: utility-map\nmap: {explore: 2}\n", r"map.explore must be a number in \[0, 1\], got 2"),
         ("algo: utility-map\nmap: {hidden: []}\n", r"map.hidden must be a non-empty list"),
-        ("algo: utility-map\nmap: {grids: 3}\n", r"unknown utility-map .*grids"),
+        ("algo: utility-map\nmap: {grids: 3}\n", r"unknown map key\(s\) \[.grids.\]; keys: batch_size, ensemble"),
         ("algo: utility-map\nenv_id: cv2x/Cooperative-v0\n", r"trains on cv2x/SingleMover-v3"),
         ("algo: utility-map\nenv: {start_pool: 0}\n", r"start_pool must be an integer >= 1"),
         ("algo: utility-map\nenv: {colour: 1}\n", r"unknown env argument\(s\) \['colour'\]"),
@@ -44,7 +44,8 @@ def test_the_shipped_config_loads() -> None:
 
 def tiny(copies: int = 2, **kw: object) -> MapConfig:
     settings = MapSettings(**{"fit_steps": 5, "batch_size": 32, "random_iterations": 1, **kw})  # type: ignore[arg-type]
-    return MapConfig(copies=copies, map=settings, eval_every=100, eval_episodes=1, env={"max_cycles": 20, "start_pool": 8})
+    env = {"max_cycles": 20, "start_pool": 8}
+    return MapConfig(copies=copies, map=settings, eval_every=100, eval_episodes=1, env=env)
 
 
 def curve(run: Path) -> list[dict[str, str]]:
@@ -56,8 +57,8 @@ def test_same_seed_same_run(tmp_path: Path) -> None:
     runs = []
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
         train_map(tiny(), 2 * 2 * 20, seed, tmp_path / name, progress=False)
-        runs.append((curve(tmp_path / name), UtilityMap.load(tmp_path / name / "model.npz").weights))
-    (ca, wa), (cb, wb), (cc, wc) = runs
+        runs.append((curve(tmp_path / name), UtilityMap.load(tmp_path / name / "model.npz").members[0]))
+    (ca, wa), (cb, wb), (_, wc) = runs
     assert ca == cb and len(ca) == 2 and ca[-1]["eval_utility_gain"] != ""
     for (w1, b1), (w2, b2) in zip(wa, wb, strict=True):
         np.testing.assert_array_equal(w1, w2)
