@@ -10,7 +10,8 @@
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
     ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save); a ``.pt``
-                        file: :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor)
+                        file: :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor) or
+                        :class:`~cv2x_marl.policies.torch_ppo.TorchPpoPolicy` (``ppo.backend: torchrl``), by its format
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
 :mod:`cv2x_marl.policies.baselines`.
@@ -23,11 +24,12 @@ from typing import TYPE_CHECKING
 
 from cv2x_marl.policies import traffic
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.policies.mappo import MappoPolicy, is_mappo_file
+from cv2x_marl.policies.mappo import is_mappo_file
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+from cv2x_marl.policies.torch_ppo import load_pt_policy
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
 
 if TYPE_CHECKING:
@@ -125,5 +127,5 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
             raise ValueError(
                 f"policy {spec}: {path} is a folder; give the model file in it (model.zip for PPO, model.pt for MAPPO)"
             )
-        return MappoPolicy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
+        return load_pt_policy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")
