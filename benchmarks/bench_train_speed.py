@@ -10,11 +10,15 @@ process's CPU time, every thread counted):
   copies and the model, resets, collection and updates;
 * ``collect_cpu_s``: the rollouts alone (SB3: from ``_on_rollout_start`` to ``_on_rollout_end``; torchrl: the
   collection and GAE), the remainder being the updates and start-up;
+* ``phases``: the steady state (the env option ``start_pool: 8``, after a warm-up of 6 iterations, so every reset
+  is a kept start), CPU milliseconds per iteration of ``n_steps`` x copies agent-steps over 20 iterations, split
+  into the collection (SB3: the rollout; torchrl: the collection and GAE) and the rest (the update), torch on
+  one thread; ``--phases-only`` measures this alone;
 * ``step_only``: the env alone through each trainer's adapter (SB3: :class:`~cv2x_marl.rl.sb3_vec_env.AgentsVecEnv`;
   torchrl: :class:`~cv2x_marl.env.vector.SingleMoverVectorEnv`), random actions, resets included, the same
   agent-steps, also in a fresh process.
 
-    python benchmarks/bench_train_speed.py [--timesteps 20480] [--threads 1 2] [--config FILE]
+    python benchmarks/bench_train_speed.py [--timesteps 20480] [--threads 1 2] [--config FILE] [--phases-only]
 
 Writes ``benchmarks/results/bench_train_speed_<config stem>.json``.
 """
@@ -89,6 +93,58 @@ def run_torchrl(path: str, timesteps: int, seed: int) -> dict[str, Any]:
     return {"agent_steps": run.agent_steps, "cpu_s": time.process_time() - cpu0, "collect_cpu_s": collect}
 
 
+def _steady(path: str) -> Any:
+    """The configuration with the env option ``start_pool: 8``: after a warm-up every reset is a kept start."""
+    cfg = _config(path, "torchrl")
+    return dataclasses.replace(cfg, env={**cfg.env, "start_pool": 8})
+
+
+def phases_sb3(path: str, iterations: int, seed: int) -> dict[str, Any]:
+    """SB3's CPU milliseconds per iteration in the steady state: the rollout, and the rest (the update)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from cv2x_marl.rl.train import make_ppo, make_vec_env
+
+    cfg = dataclasses.replace(_steady(path), ppo=dataclasses.replace(_steady(path).ppo, backend="sb3"))
+    vec = make_vec_env(cfg)
+    model = make_ppo(vec, cfg.ppo, seed, layout=vec.envs[0].layout)
+    rollout = cfg.ppo.n_steps * cfg.copies
+    model.learn(6 * rollout)  # warm-up: every pool start computed once
+    collect = [0.0]
+
+    class Timer(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            self.t = time.process_time()
+
+        def _on_rollout_end(self) -> None:
+            collect[0] += time.process_time() - self.t
+
+        def _on_step(self) -> bool:
+            return True
+
+    t0 = time.process_time()
+    model.learn(iterations * rollout, reset_num_timesteps=False, callback=Timer())
+    total = time.process_time() - t0
+    return {"collect_ms": 1e3 * collect[0] / iterations, "update_ms": 1e3 * (total - collect[0]) / iterations}
+
+
+def phases_torchrl(path: str, iterations: int, seed: int) -> dict[str, Any]:
+    """The torchrl loop's CPU milliseconds per iteration in the steady state: collection with GAE, update."""
+    from cv2x_marl.rl.fast_ppo import FastPpo
+
+    run = FastPpo(_steady(path), seed)
+    for _ in range(6):  # warm-up: every pool start computed once
+        run.iterate()
+    collect = update = 0.0
+    for _ in range(iterations):
+        t0 = time.process_time()
+        data = run.advantages(run.collect())
+        t1 = time.process_time()
+        run.update(data)
+        collect, update = collect + t1 - t0, update + time.process_time() - t1
+    return {"collect_ms": 1e3 * collect / iterations, "update_ms": 1e3 * update / iterations}
+
+
 def run_step_only(path: str, timesteps: int, seed: int, backend: str) -> dict[str, Any]:
     """The env alone through ``backend``'s adapter: random actions, resets included."""
     cpu0 = time.process_time()
@@ -118,7 +174,10 @@ def child(args: argparse.Namespace) -> None:
     import torch
 
     torch.set_num_threads(args.threads)
-    if args.child == "sb3":
+    if args.child.startswith("phases:"):
+        fn = phases_sb3 if args.child == "phases:sb3" else phases_torchrl
+        out = fn(args.config, 20, args.seed)
+    elif args.child == "sb3":
         out = run_sb3(args.config, args.timesteps, args.seed)
     elif args.child == "torchrl":
         out = run_torchrl(args.config, args.timesteps, args.seed)
@@ -133,7 +192,8 @@ def measure(kind: str, args: argparse.Namespace, threads: int) -> dict[str, Any]
     cmd += ["--timesteps", str(args.timesteps), "--seed", str(args.seed)]
     res = subprocess.run(cmd, check=True, capture_output=True, text=True)
     out = json.loads(res.stdout.strip().splitlines()[-1])
-    out["steps_per_cpu_s"] = out["agent_steps"] / out["cpu_s"]
+    if "agent_steps" in out:
+        out["steps_per_cpu_s"] = out["agent_steps"] / out["cpu_s"]
     return out
 
 
@@ -143,6 +203,7 @@ def main() -> None:
     ap.add_argument("--timesteps", type=int, default=20_480)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--phases-only", action="store_true", help="only the steady-state collection / update split")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--threads-one", dest="threads_one", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -168,6 +229,12 @@ def main() -> None:
         "stable_baselines3": stable_baselines3.__version__,
         "runs": {},
     }
+    for kind in ("phases:sb3", "phases:torchrl"):  # steady state, per iteration of n_steps x copies agent-steps
+        rows["runs"][kind] = measure(kind, args, 1)
+        print(kind, rows["runs"][kind], flush=True)
+    if args.phases_only:
+        write_json(Path(f"benchmarks/results/bench_train_speed_phases_{Path(args.config).stem}.json"), rows)
+        return
     for kind in ("step:sb3", "step:torchrl"):
         rows["runs"][kind] = measure(kind, args, 1)
         print(kind, rows["runs"][kind], flush=True)

@@ -79,20 +79,25 @@ class ActorCritic(nn.Module):
         self.obs_size = int(obs_size)
         self.encoder: nn.Module | None = None
         width = self.obs_size
-        if encoder != "mlp":
-            from gymnasium import spaces
+        # torch's default initialisation draws from the global generator: it runs on a forked copy of it, so
+        # building the network leaves the global state as it was (init_weights sets the weights)
+        with torch.random.fork_rng(devices=[]):
+            if encoder != "mlp":
+                from gymnasium import spaces
 
-            from cv2x_marl.policies.encoders import NeighbourEncoder
+                from cv2x_marl.policies.encoders import NeighbourEncoder
 
-            if layout is None:
-                raise ValueError(f"encoder={encoder} needs the env's layout (cv2x_marl.policies.encoders.layout_spec)")
-            box = spaces.Box(-1.0, 1.0, (self.obs_size,))
-            self.encoder = NeighbourEncoder(box, layout, pool=encoder, units=int(encoder_units))
-            width = 3 * int(encoder_units)
-        self.policy_net, pi_width = tanh_mlp(width, net_arch)
-        self.value_net, vf_width = tanh_mlp(width, net_arch)
-        self.action_net = nn.Linear(pi_width, int(act_size))
-        self.value_head = nn.Linear(vf_width, 1)
+                if layout is None:
+                    raise ValueError(
+                        f"encoder={encoder} needs the env's layout (cv2x_marl.policies.encoders.layout_spec)"
+                    )
+                box = spaces.Box(-1.0, 1.0, (self.obs_size,))
+                self.encoder = NeighbourEncoder(box, layout, pool=encoder, units=int(encoder_units))
+                width = 3 * int(encoder_units)
+            self.policy_net, pi_width = tanh_mlp(width, net_arch)
+            self.value_net, vf_width = tanh_mlp(width, net_arch)
+            self.action_net = nn.Linear(pi_width, int(act_size))
+            self.value_head = nn.Linear(vf_width, 1)
         self.log_std = nn.Parameter(torch.full((int(act_size),), float(log_std_init)))
 
     def spec(self) -> dict[str, Any]:

@@ -30,8 +30,9 @@ Seeding: one seed, named streams spawned from ``SeedSequence(seed)`` in the orde
 (the initial weights, a ``torch.Generator``), ``actions`` (the action noise, a ``torch.Generator``),
 ``episodes`` (one numpy generator per copy, spawned from it: each copy's episode seeds, drawn from the
 protocol's training seeds with the env option ``start_pool``) and ``minibatches`` (the shuffling, a
-``torch.Generator``). No global random state is read or changed: the same seed gives the same learning curve
-and identical parameters (tested).
+``torch.Generator``). The global torch and numpy generators are left as they were (the network is built on a
+forked copy of torch's, :class:`~cv2x_marl.policies.ppo_nets.ActorCritic`): the same seed gives the same learning
+curve and identical parameters (tested).
 
 The run folder: ``train_config.json`` (the configuration, seed, timesteps), ``model.pt`` (the network's
 keyword arguments and weights: ``--policy ppo:PATH`` loads it, :class:`cv2x_marl.policies.torch_ppo.

@@ -77,7 +77,11 @@ def _curve(seed: int, iterations: int = 3) -> tuple[list[float], list[dict[str, 
 
 
 def test_one_seed_gives_one_learning_curve():
+    torch_state, numpy_state = torch.random.get_rng_state(), np.random.get_state()  # noqa: NPY002
     a, b, c = _curve(5), _curve(5), _curve(6)
+    # the global generators are left where they were
+    assert torch.equal(torch.random.get_rng_state(), torch_state)
+    assert np.random.get_state()[1].tolist() == numpy_state[1].tolist()  # noqa: NPY002
     assert len(a[0]) == 2 * (3 * 12 // 8)  # 36 steps per copy: 4 episodes of 8 each
     assert a == b  # returns, losses and parameters, bit for bit
     assert a[2] != c[2] and a[0] != c[0]
