@@ -249,6 +249,19 @@ def plot_learning_curves(curves: dict[str, list[dict[str, float]]], path: str | 
     return _save(fig, path)
 
 
+def plot_return_vs_cpu(rows: list[dict[str, Any]], path: str | Path, title: str) -> Path:
+    """The mean training-episode return against the process CPU seconds of training: the rows of a
+    ``curve.csv`` (``cpu_s``, ``train_mean_return``; rows without a return yet are left out)."""
+    fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
+    kept = [r for r in rows if r["train_mean_return"] == r["train_mean_return"]]  # NaN before the first episode
+    ax.plot([r["cpu_s"] for r in kept], [r["train_mean_return"] for r in kept], "-", lw=1.2)
+    ax.set_xlabel("process CPU seconds (start-up, collection and updates)")
+    ax.set_ylabel("mean training-episode return")
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    return _save(fig, path)
+
+
 def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
     """Held-out utility gain per grid point of a sweep: mean +- std bar, one dot per training seed."""
     points = result["points"]

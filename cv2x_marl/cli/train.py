@@ -67,5 +67,8 @@ def run(args: argparse.Namespace) -> int:
             f"eval: utility gain {fe['mean_utility_gain']:+.1%}, effectiveness {fe['effectiveness']:.1%}, "
             f"PRR gain {fe['mean_prr_gain']:+.1%}"
         )
-        print(f"wrote {args.out / 'model.zip'}, record.json, eval.csv, checkpoints/, tb/")
+        if record.get("backend") == "torchrl":
+            print(f"wrote {args.out / 'model.pt'}, record.json, curve.csv, curve.png, eval.csv")
+        else:
+            print(f"wrote {args.out / 'model.zip'}, record.json, eval.csv, checkpoints/, tb/")
     return 0

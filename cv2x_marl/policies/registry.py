@@ -10,9 +10,10 @@
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
     ppo:PATH            a learned model file ``cv2x-marl train`` writes: :class:`~cv2x_marl.policies.ppo.PpoPolicy`
-                        (a stable-baselines3 save, ``.zip``); :class:`~cv2x_marl.policies.mappo.MappoPolicy`
-                        (a MAPPO actor, ``.pt``); :class:`~cv2x_marl.policies.utility_map.UtilityMapPolicy`
-                        (a learned utility map, ``.npz``)
+                        (a stable-baselines3 save, ``.zip``); a ``.pt`` file: :class:`~cv2x_marl.policies.mappo.MappoPolicy`
+                        (a MAPPO actor) or :class:`~cv2x_marl.policies.torch_ppo.TorchPpoPolicy` (``ppo.backend:
+                        torchrl``), by its format; :class:`~cv2x_marl.policies.utility_map.UtilityMapPolicy` (a learned
+                        utility map, ``.npz``)
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
 :mod:`cv2x_marl.policies.baselines`.
@@ -25,11 +26,12 @@ from typing import TYPE_CHECKING
 
 from cv2x_marl.policies import traffic
 from cv2x_marl.policies.base import Policy, RandomPolicy, StaticPolicy
-from cv2x_marl.policies.mappo import MappoPolicy, is_mappo_file
+from cv2x_marl.policies.mappo import is_mappo_file
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+from cv2x_marl.policies.torch_ppo import load_pt_policy
 from cv2x_marl.policies.utility_map import UtilityMapPolicy, is_map_file
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
 
@@ -131,5 +133,5 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
             )
         if is_map_file(path):
             return UtilityMapPolicy(path, env)
-        return MappoPolicy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
+        return load_pt_policy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

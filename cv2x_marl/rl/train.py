@@ -354,6 +354,10 @@ def train(
         cv2x_marl.runs.RunFolderError: the folder is in use, not empty (without ``overwrite`` or
             ``resume``) or not writable.
     """
+    if cfg.ppo.backend == "torchrl":  # TorchRL's loss over the batched vector env (docs/rl.md)
+        from cv2x_marl.rl.fast_ppo import train_fast
+
+        return train_fast(cfg, timesteps, seed, run_dir, resume=resume, progress=progress, overwrite=overwrite)
     require("torch", "cv2x-marl train")
     require("stable_baselines3", "cv2x-marl train")
     if not is_int(timesteps) or timesteps < 1:

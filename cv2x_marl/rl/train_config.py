@@ -12,7 +12,7 @@ from typing import Any
 
 from cv2x_marl.checks import as_real, is_int
 from cv2x_marl.env.options import option_names
-from cv2x_marl.env.registry import ENV_IDS
+from cv2x_marl.env.registry import ENV_IDS, SPECS
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.yamlcore import load_mapping
 
@@ -27,6 +27,9 @@ MAX_LAYER_UNITS = 65_536
 _COPY_OVERHEAD_BYTES = 100_000
 #: ``ppo.encoder``: ``mlp`` (SB3's flat MLP) or a neighbour encoder (:mod:`cv2x_marl.policies.encoders`)
 ENCODERS = ("mlp", "deepsets", "attention")
+#: ``ppo.backend``: ``sb3`` (stable-baselines3's PPO over :class:`~cv2x_marl.rl.sb3_vec_env.AgentsVecEnv`) or
+#: ``torchrl`` (:mod:`cv2x_marl.rl.fast_ppo`: TorchRL's loss over the batched vector env, ``SingleMover`` ids)
+BACKENDS = ("sb3", "torchrl")
 
 
 #: the real-valued PPO settings PPO and MAPPO share: name -> (test, allowed values as the error says them)
@@ -78,6 +81,8 @@ class PpoConfig:
     recurrent: bool = False
     #: hidden units of the actor's and the critic's LSTM (``recurrent: true``)
     lstm_units: int = 64
+    #: the trainer (:data:`BACKENDS`): ``sb3`` or ``torchrl`` (the same network, one Python call per vector step)
+    backend: str = "sb3"
 
     def __post_init__(self) -> None:
         """Type and range checks; a numeric string (YAML 1.1 reads ``3e-4`` as one) becomes a number."""
@@ -112,6 +117,10 @@ class PpoConfig:
             raise TrainError(
                 f"ppo.encoder_units must be an integer in [1, {MAX_LAYER_UNITS:,}], got {self.encoder_units}"
             )
+        if not isinstance(self.backend, str) or self.backend not in BACKENDS:
+            raise TrainError(f"ppo.backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        if self.backend == "torchrl" and self.recurrent:
+            raise TrainError("ppo.recurrent: true needs ppo.backend: sb3 (sb3-contrib's RecurrentPPO), got torchrl")
 
 
 def check_count(name: str, value: Any) -> int:
@@ -162,6 +171,8 @@ class TrainConfig:
             )
         if self.start_pool is not None:
             object.__setattr__(self, "start_pool", check_count("train.start_pool", self.start_pool))
+        if self.ppo.backend == "torchrl":
+            check_torchrl_backend(self)
 
     def env_for_training(self) -> dict[str, Any]:
         """The env arguments of training and its evaluation callbacks: ``env`` plus, with a start
@@ -173,10 +184,38 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["ppo"]["net_arch"] = list(self.ppo.net_arch)
-        for key in ("encoder", "encoder_units", "recurrent", "lstm_units"):  # added later: left out at their defaults
+        for key in (
+            "encoder",
+            "encoder_units",
+            "recurrent",
+            "lstm_units",
+            "backend",
+        ):  # added later: left out at their defaults
             if d["ppo"][key] == getattr(PpoConfig, key):
                 del d["ppo"][key]
         return d
+
+
+def check_torchrl_backend(cfg: TrainConfig) -> None:
+    """What ``ppo.backend: torchrl`` needs of a configuration: an id whose copies the batched vector env steps
+    (:class:`~cv2x_marl.env.vector.SingleMoverVectorEnv`: the ``SingleMover`` ids) and training episodes from the
+    protocol's training seeds (the env option ``start_pool``), not the top-level ``start_pool`` (seeds derived
+    from the training seed, which may be anyone's).
+
+    Raises:
+        TrainError: naming the key and the values allowed.
+    """
+    vector_ids = [s.env_id for s in SPECS if s.vector]
+    if cfg.env_id not in vector_ids:
+        raise TrainError(
+            f"ppo.backend: torchrl steps the batched vector env, which {cfg.env_id} has not; env ids: "
+            f"{', '.join(vector_ids)} (or ppo.backend: sb3)"
+        )
+    if cfg.start_pool is not None:
+        raise TrainError(
+            f"train.start_pool={cfg.start_pool} is not taken by ppo.backend: torchrl; set the env option "
+            "env.start_pool (the protocol's training seeds) instead"
+        )
 
 
 def env_arguments(env_id: str) -> tuple[str, ...]:
