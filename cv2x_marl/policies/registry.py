@@ -9,11 +9,11 @@
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
-    ppo:PATH            a learned model file ``cv2x-marl train`` writes: :class:`~cv2x_marl.policies.ppo.PpoPolicy`
-                        (a stable-baselines3 save, ``.zip``); a ``.pt`` file: :class:`~cv2x_marl.policies.mappo.MappoPolicy`
-                        (a MAPPO actor) or :class:`~cv2x_marl.policies.torch_ppo.TorchPpoPolicy` (``ppo.backend:
-                        torchrl``), by its format; :class:`~cv2x_marl.policies.utility_map.UtilityMapPolicy` (a learned
-                        utility map, ``.npz``)
+    ppo:PATH            a learned model file ``cv2x-marl train`` writes: a ``.zip``:
+                        :class:`~cv2x_marl.policies.ppo.PpoPolicy` (stable-baselines3); a ``.pt``, by its format:
+                        :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor) or
+                        :class:`~cv2x_marl.policies.torch_ppo.TorchPpoPolicy` (``ppo.backend: torchrl``); a ``.npz``:
+                        :class:`~cv2x_marl.policies.utility_map.UtilityMapPolicy` (a learned utility map)
 
 Baseline files (``baselines/NAME.yaml``) name one of :data:`SCRIPTED` with its settings:
 :mod:`cv2x_marl.policies.baselines`.
