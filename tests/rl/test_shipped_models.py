@@ -17,8 +17,10 @@ from cv2x_marl.experiments.evaluate import trained_env_options
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "agents" / "models"
 TABLE = ROOT / "docs" / "benchmark" / "learners" / "benchmark.csv"
-#: task -> (folder prefix, env id the models were trained on, model file, benchmark label, config, the env options
-#: that shape observations and actions beyond the id's defaults)
+#: the learned utility maps' run (docs/benchmark.md, "A learner that plans")
+MAP_TABLE = ROOT / "docs" / "benchmark" / "learners-map" / "benchmark.csv"
+#: learner -> (folder prefix, env id the models were trained on, model file, benchmark label, config, the env options
+#: that shape observations and actions beyond the id's defaults); the benchmark tasks' learners by task name
 SHIPPED = {
     "singlemover": ("singlemover-v3", "cv2x/SingleMover-v3", "model.zip", "learned", "ppo_single_v3_deepsets.yaml", {}),
     "cooperative": ("cooperative", "cv2x/Cooperative-v0", "model.pt", "learned", "mappo_cooperative.yaml", {}),
@@ -30,7 +32,10 @@ SHIPPED = {
         "ppo_traffic_v1_change.yaml",
         {"speed_command": "change"},
     ),
+    "singlemover-map": ("singlemover-map", "cv2x/SingleMover-v3", "model.npz", "map", "map_single_v3.yaml", {}),
 }
+#: the task of each learner of :data:`SHIPPED`
+TASK_OF = {name: name.split("-")[0] for name in SHIPPED}
 #: issue 28's training budget per seed on a 2-core machine
 CPU_BUDGET_S = 15 * 60
 
@@ -40,9 +45,10 @@ def _shipped_rows() -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-@pytest.mark.parametrize("task", list(SHIPPED))
-def test_five_seeds_with_the_config_and_env_that_rebuild_them(task: str) -> None:
-    prefix, env_id, model, _, config, options = SHIPPED[task]
+@pytest.mark.parametrize("learner", list(SHIPPED))
+def test_five_seeds_with_the_config_and_env_that_rebuild_them(learner: str) -> None:
+    prefix, env_id, model, _, config, options = SHIPPED[learner]
+    task = TASK_OF[learner]
     runs = sorted(p.name for p in MODELS.glob(f"{prefix}_seed*"))
     assert runs == [f"{prefix}_seed{k}" for k in range(5)]
     shipped = {r["name"]: r for r in _shipped_rows()}
@@ -61,15 +67,21 @@ def test_five_seeds_with_the_config_and_env_that_rebuild_them(task: str) -> None
         assert 0 < float(row["cpu_s"]) <= CPU_BUDGET_S
 
 
-@pytest.mark.parametrize("task", list(SHIPPED))
-def test_a_shipped_model_reproduces_its_published_benchmark_rows(task: str, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("learner", list(SHIPPED))
+def test_a_shipped_model_reproduces_its_published_benchmark_rows(
+    learner: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Seed 0's first two held-out episodes through the benchmark's job (the env rebuilt from the model's
     train_config.json): the recorded per-episode numbers, to 1e-9 relative (another CPU's ulps; nothing
     discrete may change)."""
     monkeypatch.chdir(ROOT)  # the table names the models by their paths in the repository
-    prefix, env_id, model, label, _, _ = SHIPPED[task]
-    pytest.importorskip("stable_baselines3" if model.endswith(".zip") else "torch")
-    with TABLE.open(newline="") as fh:
+    prefix, env_id, model, label, _, _ = SHIPPED[learner]
+    task = TASK_OF[learner]
+    if model.endswith(".zip"):
+        pytest.importorskip("stable_baselines3")
+    elif model.endswith(".pt"):
+        pytest.importorskip("torch")
+    with (MAP_TABLE if model.endswith(".npz") else TABLE).open(newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["task"] == task and r["method"] == label and r["run"] == "0"]
     rows = sorted(rows, key=lambda r: int(r["episode"]))[:2]
     assert rows[0]["policy"] == f"ppo:agents/models/{prefix}_seed0/{model}" and rows[0]["env_id"] == env_id
