@@ -19,9 +19,10 @@ numpy only (the base install runs a trained map).
 
 Acting: every ``replan_every`` steps the policy searches its map over the reachable square (a
 ``grid x grid`` grid over ``[-reach, reach]^2`` around the mover, then ``refine x refine`` grids of a third
-of the pitch around the ``top`` best points; the current position is always a candidate) and drives
-straight to the best point, ``max_step_m`` per axis and step. An agent's action depends on its own
-observations alone (the map is evaluated one agent at a time, in float64).
+of the pitch around the ``top`` best points; the current position is always a candidate, scored with the
+utility the observation carries there instead of the map's estimate) and drives straight to the best
+point, ``max_step_m`` per axis and step. An agent's action depends on its own observations alone (the map
+is evaluated one agent at a time, in float64).
 """
 
 from __future__ import annotations
@@ -214,6 +215,8 @@ class UtilityMap:
         coarse = np.concatenate([coarse, np.zeros((1, 2))])
         offsets = coarse[None, :, :] * reach_m[:, None, None]
         score = self._utility(static, rel_m, target, offsets)
+        now = np.asarray(obs, dtype=np.float64)[:, layout.size - 6]  # the own utility, observed where it stands
+        score[:, -1] = now  # staying scores what the mover observes, not the map's estimate of it
         top = min(self.top, offsets.shape[1])
         best = np.argsort(-score, axis=1, kind="stable")[:, :top]
         pitch = 2.0 * reach_m / max(self.grid - 1, 1)
@@ -231,6 +234,7 @@ class UtilityMap:
             return best_m
         kept = np.clip(np.asarray(current_m, dtype=np.float64), -reach_m[:, None], reach_m[:, None])
         kept_score = self._utility(static, rel_m, target, kept[:, None, :])[:, 0]
+        kept_score = np.where(np.hypot(kept[:, 0], kept[:, 1]) < 1e-9, now, kept_score)
         switch = scores[np.arange(b), pick] > kept_score + self.switch_margin
         return np.where(switch[:, None], best_m, kept)
 

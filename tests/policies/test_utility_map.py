@@ -34,6 +34,7 @@ def scene_obs(reach_m: float = 500.0, drift_m: tuple[float, float] = (0.0, 0.0))
     meas = LAYOUT.v0_size
     obs[0, meas + 0] = 0.5
     obs[0, meas + 4 : meas + 7] = [1.0, -0.3, 1.0]
+    obs[0, LAYOUT.size - 6] = -6.9  # the own utility observed where the mover stands: ln(p_min), the worst
     obs[0, LAYOUT.size - 4 : LAYOUT.size - 2] = np.asarray(drift_m) / 100.0
     obs[0, LAYOUT.size - 1] = reach_m / 100.0
     return obs
@@ -85,6 +86,22 @@ def test_plan_finds_the_receiver_of_a_distance_only_map() -> None:
     (50 m pitch over +-500 m) has (100, 0), and nothing scores higher."""
     plan = distance_map().plan(scene_obs(), LAYOUT, np.array([500.0]))
     np.testing.assert_allclose(plan, [[100.0, 0.0]], atol=1e-9)
+
+
+def test_staying_scores_the_observed_utility() -> None:
+    """The map's best point at the receiver scores ln(p_min) * sigmoid(0) = -3.45; an observed -1 where the
+    mover stands beats it, an observed -6 does not."""
+    obs = scene_obs()
+    best = distance_map().utility(obs, LAYOUT, np.array([[[100.0, 0.0]]]))[0, 0]
+    assert best == pytest.approx(math.log(1e-3) / 2.0, rel=1e-12)
+    obs[0, LAYOUT.size - 6] = -1.0
+    np.testing.assert_array_equal(distance_map().plan(obs, LAYOUT, np.array([500.0])), [[0.0, 0.0]])
+    # a kept target where the mover stands is judged the same way: kept at -1, left at -6
+    umap = distance_map()
+    umap.switch_margin = 0.5
+    np.testing.assert_array_equal(umap.plan(obs, LAYOUT, np.array([500.0]), np.zeros((1, 2))), [[0.0, 0.0]])
+    obs[0, LAYOUT.size - 6] = -6.0
+    np.testing.assert_allclose(umap.plan(obs, LAYOUT, np.array([500.0]), np.zeros((1, 2))), [[100.0, 0.0]])
 
 
 def test_plan_refines_between_grid_points_and_stays_in_reach() -> None:
