@@ -1,4 +1,4 @@
-"""The shipped models of issue 28 (agents/models/<task>_seed{0..4}/): five training seeds per benchmark task, each
+"""The shipped models (agents/models/<task>_seed{0..4}/ and the utility maps): five training seeds per learner, each
 with the configuration and env options that rebuild its env, trained within 15 CPU-minutes, and reproducing its
 rows of the published benchmark run (docs/benchmark/learners/benchmark.csv) through the benchmark's own job."""
 
