@@ -68,9 +68,7 @@ def test_five_seeds_with_the_config_and_env_that_rebuild_them(learner: str) -> N
 
 
 @pytest.mark.parametrize("learner", list(SHIPPED))
-def test_a_shipped_model_reproduces_its_published_benchmark_rows(
-    learner: str, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_a_shipped_model_reproduces_its_published_benchmark_rows(learner: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """Seed 0's first two held-out episodes through the benchmark's job (the env rebuilt from the model's
     train_config.json): the recorded per-episode numbers, to 1e-9 relative (another CPU's ulps; nothing
     discrete may change)."""
