@@ -8,7 +8,7 @@ shares over the ceiling's gain on the same episode read from a benchmark.csv's `
 not depend on the order of decisions).
 
     python benchmarks/channel_ablation.py [--policy sequential-best-response] [--episodes 8] \
-        [--rows docs/benchmark/benchmark.csv]
+        [--hear both | with | without] [--rows docs/benchmark/benchmark.csv]
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--policy", default="sequential-best-response", choices=sorted(POLICIES))
     p.add_argument("--episodes", type=int, default=8, help="the first N held-out episodes (1 .. 48)")
+    p.add_argument("--hear", default="both", choices=("both", "with", "without"), help="the variants run")
     p.add_argument("--rows", default="docs/benchmark/benchmark.csv", help="a benchmark.csv with the optimum rows")
     args = p.parse_args(argv)
     if not 1 <= args.episodes <= 48:
@@ -55,25 +56,28 @@ def main(argv: list[str] | None = None) -> int:
             if r["task"] == "cooperative" and r["method"] == "optimum" and r["run"] == "0"
         }
     env = make_parallel_env("cv2x/Cooperative-v1", **task.options)
+    kinds = {"both": (True, False), "with": (True,), "without": (False,)}[args.hear]
     t0 = time.perf_counter()
-    out = {True: [], False: []}
+    out: dict[bool, list[float]] = {h: [] for h in kinds}
     for seed in seeds:
-        for hear in (True, False):
+        for hear in kinds:
             out[hear].append(gain(env, POLICIES[args.policy](env, hear=hear), seed))
+        text = ", ".join(f"{'with' if h else 'without'} the channel {100 * out[h][-1]:+.2f} %" for h in kinds)
         print(
-            f"seed {seed}: with the channel {100 * out[True][-1]:+.2f} %, without {100 * out[False][-1]:+.2f} %, "
-            f"ceiling {100 * ceiling[seed]:+.2f} % ({time.perf_counter() - t0:.0f} s)",
-            flush=True,
+            f"seed {seed}: {text}, ceiling {100 * ceiling[seed]:+.2f} % ({time.perf_counter() - t0:.0f} s)", flush=True
         )
     c = np.array([ceiling[s] for s in seeds])
-    for hear in (True, False):
+    for hear in kinds:
         g = np.array(out[hear])
         print(
             f"{args.policy} {'with' if hear else 'without'} the channel: mean gain {100 * g.mean():+.2f} %, "
             f"mean share {100 * np.mean(g / c):.1f} %, share of the summed gains {100 * g.sum() / c.sum():.1f} %"
         )
-    d = np.array(out[True]) - np.array(out[False])
-    print(f"difference (with - without): mean {100 * d.mean():+.2f} points of gain, {int(np.sum(d > 0))}/{len(d)} > 0")
+    if len(kinds) == 2:
+        d = np.array(out[True]) - np.array(out[False])
+        print(
+            f"difference (with - without): mean {100 * d.mean():+.2f} points of gain, {int(np.sum(d > 0))}/{len(d)} > 0"
+        )
     return 0
 
 

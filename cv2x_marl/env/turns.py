@@ -18,13 +18,15 @@ yields the agents in the period's order, ``observe`` is the view at the agent's 
 the last agent has decided (the moves are per vehicle, so the period's positions equal the moves made one after
 the other) and its rewards are the env's (``cv2x/Cooperative-v1``: the team objective, as v0). The parallel API of
 the same env takes the period's actions at once, on the period's first observation (PettingZoo's AEC-to-parallel
-meaning); scripts that read the env (:mod:`cv2x_marl.policies.sequential`) make the turns themselves with
-:func:`announced_positions`.
+meaning); a policy on the parallel env makes the turns itself with :func:`decide_in_turns` (one call per subframe,
+the observations at the turn: a learner's batched actor) or :func:`announced_positions` (the scripts of
+:mod:`cv2x_marl.policies.sequential`).
 """
 
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -88,29 +90,70 @@ def announced_positions(env: MobilityEnv, actions: FloatArray, announced: NDArra
     return np.where(mask[:, None], new, now)
 
 
-def turn_observation(env: MobilityEnv, i: int, positions_m: FloatArray) -> NDArray[np.float32]:
-    """[size] agent ``i``'s observation with the vehicles at ``positions_m`` (:func:`announced_positions`): the
-    env's observation (:meth:`~cv2x_marl.env.mobility_env.MobilityEnv.build`, the version's entries) with the
-    positions and the pair geometry at ``positions_m``, everything else the period's. Equal bit for bit to the
-    parallel observation when no vehicle has moved (``positions_m`` the env's).
+def turn_observations(env: MobilityEnv, rows: IntArray, positions_m: FloatArray) -> NDArray[np.float32]:
+    """[len(rows), size] the observations of agents ``rows`` with the vehicles at ``positions_m``
+    (:func:`announced_positions`): the env's observation (:meth:`~cv2x_marl.env.mobility_env.MobilityEnv.build`,
+    the version's entries) with the positions and the pair geometry at ``positions_m``, everything else the
+    period's. Equal bit for bit to the parallel observations when no vehicle has moved (``positions_m`` the env's).
 
     Args:
         env: a snapshot-mode env between two steps.
-        i: the agent's vehicle index.
-        positions_m: [N, 2] the positions it has heard (m).
+        rows: [A] the agents' vehicle indices.
+        positions_m: [N, 2] the positions they have heard (m).
     """
     pos = np.asarray(positions_m, dtype=np.float64)
+    rows = np.asarray(rows, dtype=np.int64)
     now, geometry = env.positions_m, env.geometry
     moved = not np.array_equal(pos, now)
     try:
         if moved:
             env.positions_m = pos
             env.geometry = env.links.geometry(pos)
-        obs = env.build(np.array([i], dtype=np.int64))
-        env.observer.fill_mover(env, obs, i)
+        obs = env.build(rows)
+        if rows.size == env.n:
+            env.observer.fill(env, obs, rows)
+        else:  # the versions with a plan fill every vehicle at once or one at a time
+            for r, i in enumerate(rows):
+                one = obs[r : r + 1]
+                env.observer.fill_mover(env, one, int(i))
     finally:
         env.positions_m, env.geometry = now, geometry
-    return obs[0]
+    return obs
+
+
+def turn_observation(env: MobilityEnv, i: int, positions_m: FloatArray) -> NDArray[np.float32]:
+    """[size] agent ``i``'s observation with the vehicles at ``positions_m`` (:func:`turn_observations`)."""
+    return turn_observations(env, np.array([i], dtype=np.int64), positions_m)[0]
+
+
+def decide_in_turns(
+    env: MobilityEnv, decide: Callable[[IntArray, NDArray[np.float32]], Any]
+) -> tuple[FloatArray, NDArray[np.float32]]:
+    """The period's actions, the vehicles deciding subframe by subframe (what the AEC API does, for a policy that
+    acts on a batch: a learner's actor, a script).
+
+    Every vehicle of one subframe hears the same moves (those of the earlier subframes), so one call of ``decide``
+    per subframe gets them all: ``decide(rows, obs)`` receives the vehicles of the subframe and their observations
+    at their turn and returns their actions [len(rows), 2].
+
+    Args:
+        env: a snapshot-mode env between two steps.
+        decide: the policy of one subframe's vehicles.
+
+    Returns:
+        ``(actions [N, 2], observations [N, size])``: the period's actions (pass them to ``env.step``) and each
+        vehicle's observation at its turn.
+    """
+    sub = subframes(env)
+    act = np.zeros((env.n, 2))
+    obs = np.zeros((env.n, env.layout.size), dtype=np.float32)
+    decided = np.zeros(env.n, dtype=bool)
+    for s in np.unique(sub):
+        rows = np.flatnonzero(sub == s)
+        obs[rows] = turn_observations(env, rows, announced_positions(env, act, decided))
+        act[rows] = np.asarray(decide(rows, obs[rows]), dtype=np.float64).reshape(rows.size, 2)
+        decided[rows] = True
+    return act, obs
 
 
 class SubframeAECEnv(parallel_to_aec_wrapper):
