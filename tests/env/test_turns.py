@@ -287,3 +287,22 @@ def test_decide_in_turns_gives_the_aec_observations_and_moves() -> None:
         par.step({a: act[i].astype(np.float32) for a, i in par.agent_index.items()})
     np.testing.assert_array_equal(np.array(par.tracks), np.array(aec.unwrapped.tracks))
     assert calls == 4 * len(np.unique(subframes(par))) and not np.array_equal(par.tracks[0], par.tracks[-1])
+
+
+def _aec_episode(seed: int) -> np.ndarray:
+    """Every observation at every turn and every reward of one AEC episode with fixed random actions."""
+    rng = np.random.default_rng(1)
+    aec = make_aec_env("cv2x/Cooperative-v1", **TINY)
+    aec.reset(seed=seed)
+    out = []
+    for _ in aec.agent_iter():
+        obs, rew, term, trunc, _ = aec.last()
+        out += [obs, np.array([rew])]
+        aec.step(None if term or trunc else rng.uniform(-1, 1, 2).astype(np.float32))
+    return np.concatenate(out)
+
+
+def test_aec_same_seed_same_episode_other_seed_other() -> None:
+    a, b, c = _aec_episode(5), _aec_episode(5), _aec_episode(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
