@@ -221,9 +221,12 @@ class SubframeAECEnv(parallel_to_aec_wrapper):
             self._actions.pop(agent, None)
             self._was_dead_step(action)
             return
-        i = self.par.agent_index[agent]
+        par = self.par
+        i = par.agent_index[agent]
+        # checked at the turn (shape (2,), finite: the env's messages), before later agents hear the move
+        self.actions_m[i] = step_core.decode_actions({agent: action}, {agent}, [agent], par.possible_agents,
+                                                     par.agent_index)[i]  # fmt: skip
         self._actions[agent] = action
-        self.actions_m[i] = np.asarray(action, dtype=np.float64).reshape(2)
         self.decided[i] = True
         if not self._agent_selector.is_last():
             if self._agent_selector.is_first():

@@ -306,3 +306,13 @@ def test_aec_same_seed_same_episode_other_seed_other() -> None:
     a, b, c = _aec_episode(5), _aec_episode(5), _aec_episode(6)
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
+
+
+def test_a_bad_action_is_refused_at_its_turn_naming_the_agent() -> None:
+    aec = make_aec_env("cv2x/Cooperative-v1", **TINY)
+    aec.reset(seed=5)
+    first = aec.agent_selection
+    with pytest.raises(ValueError, match=rf"action of {first} is not finite"):
+        aec.step(np.array([np.nan, 0.0], np.float32))
+    with pytest.raises(ValueError, match=rf"action of {first} must have shape \(2,\), got shape \(3,\)"):
+        aec.step(np.zeros(3, np.float32))
