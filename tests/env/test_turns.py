@@ -316,3 +316,15 @@ def test_a_bad_action_is_refused_at_its_turn_naming_the_agent() -> None:
         aec.step(np.array([np.nan, 0.0], np.float32))
     with pytest.raises(ValueError, match=rf"action of {first} must have shape \(2,\), got shape \(3,\)"):
         aec.step(np.zeros(3, np.float32))
+
+
+def test_team_move_is_team_moves_single_move_of_one_vehicle() -> None:
+    """``team_move`` with the vehicles where they are equals ``team_moves``' simultaneous row of that vehicle."""
+    from cv2x_marl.env.team_search import team_move, team_moves
+
+    env = make_parallel_env("cv2x/Cooperative-v1", **TINY)
+    env.reset(seed=5)
+    every = team_moves(env)
+    for i in range(env.n):
+        np.testing.assert_array_equal(team_move(env, i, env.positions_m), every[i])
+    assert not np.array_equal(every, env.positions_m)
