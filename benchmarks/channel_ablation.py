@@ -1,8 +1,7 @@
 """What the coordination channel of ``cv2x/Cooperative-v1`` buys a script: the same sequential script with and
 without the announcements, on the first held-out episodes of the cooperative task.
 
-A :mod:`cv2x_marl.policies.sequential` script (or ``sequential-team``, defined here: the same turns for the team
-objective J, privileged) re-plans at its subframe's turn with the earlier subframes' vehicles
+A :mod:`cv2x_marl.policies.sequential` script re-plans at its subframe's turn with the earlier subframes' vehicles
 at their announced moves; with ``hear=False`` it plans with every vehicle where it is (simultaneous decisions, the
 same search, the same re-plans). The gains are eq. 17 of the team objective J (the benchmark's ``utility_gain``),
 shares over the ceiling's gain on the same episode read from a benchmark.csv's ``optimum`` rows (the ceiling does
@@ -21,20 +20,8 @@ import numpy as np
 
 from cv2x_marl.env.registry import make_parallel_env
 from cv2x_marl.env.tasks import TASKS
-from cv2x_marl.env.team_search import team_move, team_objective
-from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialPolicy, SequentialSensingPolicy
-
-
-class SequentialTeamPolicy(SequentialPolicy):
-    """``sequential-team`` (here only): every period, at its turn, the best reachable position for the team
-    objective J with the earlier subframes' vehicles at their announced moves (privileged, the ceiling's knowledge:
-    :func:`~cv2x_marl.env.team_search.team_move`)."""
-
-    name = "sequential-team"
-
-    def plan(self, i: int, heard_m: np.ndarray) -> np.ndarray:
-        return team_move(self.env, i, heard_m, normalise=bool(self.env.normalise_reward))
-
+from cv2x_marl.env.team_search import team_objective
+from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy
 
 POLICIES = {p.name: p for p in (SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy)}
 

@@ -30,8 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--policy",
         action="append",
         help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response | "
-        "sequential-best-response | sequential-sensing | ppo:PATH | baselines/NAME.yaml (default gbmu); repeated, "
-        "or a ppo:PATTERN glob: the training runs of one method, pooled",
+        "sequential-best-response | sequential-sensing | sequential-team | ppo:PATH | baselines/NAME.yaml (default "
+        "gbmu); repeated, or a ppo:PATTERN glob: the training runs of one method, pooled",
     )
     p.add_argument(
         "--seeds",

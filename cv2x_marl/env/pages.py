@@ -205,7 +205,9 @@ def _policies_section(spec: EnvSpec) -> list[str]:
             "Scripts that use the channel (`cv2x_marl.policies.sequential`): `sequential-best-response` (every period, "
             "at its turn, the best reachable position for the own utility with the earlier subframes' vehicles at "
             "their announced moves; privileged) and `sequential-sensing` (the same from the vehicle's measured "
-            "estimate, every sensing window). A learner acts at its turn through the AEC API.",
+            "estimate, every sensing window), `sequential-team` (every period, the best reachable position for the "
+            "team objective; privileged). A learner acts at its turn through the AEC API, or batched with "
+            "`cv2x_marl.env.turns.decide_in_turns`.",
         ]
     return [
         head + f" Scripted methods: {', '.join(f'`{m}`' for m in task.methods)}; the ceiling: `{task.ceiling}`.",

@@ -9,7 +9,7 @@
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
-    sequential-best-response | sequential-sensing
+    sequential-best-response | sequential-sensing | sequential-team
                         :mod:`cv2x_marl.policies.sequential` (``decision_order="subframe"``, ``cv2x/Cooperative-v1``:
                         each vehicle re-plans at its subframe's turn, hearing the moves announced before it)
     ppo:PATH            :class:`~cv2x_marl.policies.ppo.PpoPolicy` (a stable-baselines3 save); a ``.pt``
@@ -31,7 +31,7 @@ from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
-from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy
+from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
 
 if TYPE_CHECKING:
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 #: the scripted policies, by name (what a baseline file's ``policy:`` may name)
 SCRIPTED = (
     "static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum", "best-response",
-    "sequential-best-response", "sequential-sensing",
+    "sequential-best-response", "sequential-sensing", "sequential-team",
 )  # fmt: skip
 #: the scripted policies that read a two-distance model
 MODELLED = ("gbmu", "greedy", "planner", "sensing")
@@ -52,7 +52,7 @@ PPO_PREFIX = "ppo:"
 #: action means something else (traffic mode with ``traffic_action="speed"``: speed and lane commands)
 OFFSET_POLICIES = (
     "gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response", "sequential-best-response",
-    "sequential-sensing",
+    "sequential-sensing", "sequential-team",
 )  # fmt: skip
 
 
@@ -92,7 +92,7 @@ def refuse_action_space(spec: str, env: MobilityEnv) -> None:
 
 def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delta: float = 100.0) -> Policy:
     """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response |
-    sequential-best-response | sequential-sensing | ppo:PATH``.
+    sequential-best-response | sequential-sensing | sequential-team | ppo:PATH``.
 
     Args:
         spec: the policy's name (:data:`SCRIPTED`) or ``ppo:PATH``.
@@ -128,6 +128,8 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         return SequentialBestResponsePolicy(env)
     if spec == "sequential-sensing":
         return SequentialSensingPolicy(env)
+    if spec == "sequential-team":
+        return SequentialTeamPolicy(env)
     if spec in ("planner", "sensing"):
         estimator = "model" if spec == "planner" else "sensing"
         return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)

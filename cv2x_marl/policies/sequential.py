@@ -14,6 +14,10 @@ for this period (its decided move) and the others where they are, then steps str
                                its measured estimate (``sensing`` on observation version 3:
                                :func:`~cv2x_marl.env.planning.measured_row`, 20 m grid, 4 points refined), the
                                announced moves in place of the old positions
+    sequential-team            every period, its best reachable position for the team objective J (privileged, the
+                               ceiling's knowledge: :func:`~cv2x_marl.env.team_search.team_move`, one single move of
+                               the team search); without the announcements it is the all-at-once team-aware
+                               re-planning of ``benchmarks/cooperative_gap.py``
 
 Both act through the parallel API (they read the env and make the turns themselves: :meth:`SequentialPolicy.act`)
 or one agent at a time through the AEC API (:meth:`SequentialPolicy.turn_action` with the positions the agent has
@@ -35,6 +39,7 @@ from cv2x_marl.env.planning import (
     measured_row,
     reachable_set,
 )
+from cv2x_marl.env.team_search import team_move
 from cv2x_marl.env.turns import announced_positions, subframes
 from cv2x_marl.policies.base import Actions, Observations
 
@@ -160,3 +165,14 @@ class SequentialSensingPolicy(SequentialPolicy):
         env = self.env
         row = measured_row(env, i, heard_m)
         return best_reachable(row, reachable_set(env, i), env.p_min, self.grid_m, self.refine)[0]
+
+
+class SequentialTeamPolicy(SequentialPolicy):
+    """``sequential-team``: every period, at its turn, the best reachable position for the team objective J with the
+    earlier subframes' vehicles at their announced moves (privileged: :func:`~cv2x_marl.env.team_search.team_move`,
+    the team search's single move on the coarse-to-fine grids)."""
+
+    name = "sequential-team"
+
+    def plan(self, i: int, heard_m: FloatArray) -> FloatArray:
+        return team_move(self.env, i, heard_m, normalise=bool(self.env.normalise_reward))

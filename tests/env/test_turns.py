@@ -328,3 +328,18 @@ def test_team_move_is_team_moves_single_move_of_one_vehicle() -> None:
     for i in range(env.n):
         np.testing.assert_array_equal(team_move(env, i, env.positions_m), every[i])
     assert not np.array_equal(every, env.positions_m)
+
+
+def test_sequential_team_without_announcements_is_all_at_once_team_re_planning() -> None:
+    """``sequential-team`` with ``hear=False`` moves every vehicle towards ``team_moves``' simultaneous targets (the
+    all-at-once team-aware re-planning of benchmarks/cooperative_gap.py), with it the subframe order changes them."""
+    from cv2x_marl.env.team_search import team_moves
+
+    env = make_parallel_env("cv2x/Cooperative-v1", **TINY)
+    obs, _ = env.reset(seed=5)
+    env.resource = SUBFRAMES * env.config.sps.n_subchannels + np.array([0, 0, 1, 0])
+    deaf = make_policy("sequential-team", env)
+    deaf.hear = False
+    want = np.clip((team_moves(env) - env.positions_m) / env.max_step_m, -1, 1)
+    got = deaf.act(obs)
+    np.testing.assert_array_equal(np.array([got[a] for a in env.possible_agents]), want.astype(np.float32))
