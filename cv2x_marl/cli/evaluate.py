@@ -29,8 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--policy",
         action="append",
-        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | ppo:PATH | baselines/NAME.yaml "
-        "(default gbmu); repeated, or a ppo:PATTERN glob: the training runs of one method, pooled",
+        help="static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response | "
+        "sequential-best-response | sequential-sensing | sequential-team | ppo:PATH | baselines/NAME.yaml (default "
+        "gbmu); repeated, or a ppo:PATTERN glob: the training runs of one method, pooled",
     )
     p.add_argument(
         "--seeds",

@@ -9,6 +9,8 @@
     parallel_env_v2 / env_v2   the same for ``cv2x/Mobility-v2`` (observation version 2: the sensing plan)
     parallel_env_v3 / env_v3   the same for ``cv2x/Mobility-v3`` (plan-free observation version 3, shadowing field)
     parallel_env_cooperative / env_cooperative   ``cv2x/Cooperative-v0`` (every vehicle moves, team reward)
+    parallel_env_cooperative_v1 / env_cooperative_v1   ``cv2x/Cooperative-v1`` (the same; the AEC API in the
+                                                 order of the transmission subframes, the moves announced before)
     parallel_env_traffic / env_traffic           ``cv2x/Traffic-v0`` (vehicles drive; vehicle 0, or with
                                                  ``movers=None`` every vehicle, commands its speed and lane)
     parallel_env_traffic_v1 / env_traffic_v1     ``cv2x/Traffic-v1`` (the same, observation version 4: measured)
@@ -16,7 +18,7 @@
 The ids (one table, :data:`cv2x_marl.env.registry.SPECS`), the factories (``functools.partial`` of
 :func:`make_parallel_env` / :func:`make_aec_env` on the id, :data:`~cv2x_marl.env.registry.FACTORIES`) and their
 registration are :mod:`cv2x_marl.env.registry`'s: ``import
-cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0``, ``cv2x/Traffic-v0`` / ``-v1``
+cv2x_marl`` registers ``cv2x/Mobility-v0`` .. ``-v3``, ``cv2x/Cooperative-v0`` / ``-v1``, ``cv2x/Traffic-v0`` / ``-v1``
 (``pettingzoo.make("parallel", ...)`` and ``pettingzoo.make("aec", ...)``) and the single-agent Gymnasium
 envs ``cv2x/SingleMover-v0`` .. ``-v3`` and ``cv2x/Traffic-v0``. :class:`MobilityEnv` and
 :class:`ObservationLayout` are imported on first use, so that importing the package (the registry, for

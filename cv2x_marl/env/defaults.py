@@ -15,6 +15,9 @@ V2_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 2}
 V3_DEFAULTS: dict[str, Any] = {**V1_DEFAULTS, "observation": 3, "shadow_field": True}
 #: ``cv2x/Cooperative-v0``: v3 with every vehicle moving for the team objective
 COOPERATIVE_DEFAULTS: dict[str, Any] = {**V3_DEFAULTS, "reward": "team"}
+#: ``cv2x/Cooperative-v1``: Cooperative-v0 with the coordination channel: the AEC API takes the vehicles in the
+#: order of their transmission subframes, each observing the moves announced earlier in the period
+COOPERATIVE_V1_DEFAULTS: dict[str, Any] = {**COOPERATIVE_DEFAULTS, "decision_order": "subframe"}
 #: ``cv2x/Traffic-v0``: vehicles drive the lane model, the mover commands its speed and lane, the reward is the
 #: period's utility per target receiver, the observation is v0's block plus the driving entries, and the infos
 #: carry the episode's means
@@ -28,14 +31,15 @@ TRAFFIC_DEFAULTS: dict[str, Any] = {
 #: ``cv2x/Traffic-v1``: Traffic-v0 with observation version 4, what the mover measured on the road (RSRP over its
 #: sensing window, the SCIs it decoded, its own SPS state; :mod:`cv2x_marl.env.traffic_measurement`)
 TRAFFIC_V1_DEFAULTS: dict[str, Any] = {**TRAFFIC_DEFAULTS, "observation": 4}
-#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0``: ``cv2x/Cooperative-v0``;
-#: ``traffic-v0``, ``traffic-v1``: ``cv2x/Traffic-v0``, ``cv2x/Traffic-v1``)
+#: the defaults of each env version (v0: :class:`EnvOptions`' own; ``cooperative-v0`` / ``-v1``:
+#: ``cv2x/Cooperative-v0`` / ``-v1``; ``traffic-v0``, ``traffic-v1``: ``cv2x/Traffic-v0``, ``cv2x/Traffic-v1``)
 VERSION_DEFAULTS: dict[str, dict[str, Any]] = {
     "v0": {},
     "v1": V1_DEFAULTS,
     "v2": V2_DEFAULTS,
     "v3": V3_DEFAULTS,
     "cooperative-v0": COOPERATIVE_DEFAULTS,
+    "cooperative-v1": COOPERATIVE_V1_DEFAULTS,
     "traffic-v0": TRAFFIC_DEFAULTS,
     "traffic-v1": TRAFFIC_V1_DEFAULTS,
 }

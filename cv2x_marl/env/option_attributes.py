@@ -15,6 +15,7 @@ from cv2x_marl.env.options import EnvOptions, options_signature
 STRUCTURAL_OPTIONS = (
     "preset", "overrides", "mode", "movers", "n_neighbours", "scale_m", "observation", "privileged", "action_mode",
     "traffic_action", "speed_command", "drive_observation", "episode_metrics",
+    "decision_order",
 )  # fmt: skip
 
 

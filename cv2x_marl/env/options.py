@@ -52,6 +52,10 @@ TRAFFIC_ACTIONS = ("offset", "speed")
 TEAM_OBJECTIVES = ("utility", "prr")
 #: ``speed_command``: what ``action[0]`` means with ``traffic_action="speed"`` on the lane model
 SPEED_COMMANDS = ("target", "change")
+#: who decides a period's moves when (the coordination channel): ``simultaneous``: every agent on the period's
+#: first observation; ``subframe``: in the order of the agents' transmission subframes (the AEC API,
+#: :mod:`cv2x_marl.env.turns`), each seeing the moves announced in the earlier subframes of the period
+DECISION_ORDERS = ("simultaneous", "subframe")
 #: the sensing window of TS 36.213 clause 14.1.1.6 (1000 ms) in 100-ms periods
 SENSING_WINDOW = 10
 #: standard deviation (dB) of the RSRP measurement error: the +-6 dB absolute accuracy of E-UTRA RSRP in
@@ -324,6 +328,16 @@ class EnvOptions:
         "decorrelates with how far its ends moved, `channel.shadowing_decorrelation_m`; equal to the snapshot's at "
         "the start); false: every pair keeps the snapshot's shadowing wherever the vehicles move",
     )
+    decision_order: str = _option(
+        "observation",
+        "simultaneous",
+        "`simultaneous`: every agent decides its move on the period's first observation; `subframe` (snapshot mode, "
+        "`cv2x/Cooperative-v1`): the AEC API takes the agents in the order of their transmission subframes in the "
+        "100 ms period (ties: the lower vehicle index first) and each agent's observation at its turn shows the moves "
+        "announced in the earlier subframes (`cv2x_marl.env.turns`); the parallel API takes the period's actions at "
+        "once",
+        choices=DECISION_ORDERS,
+    )
     sensing_window: int = _option(
         "observation",
         SENSING_WINDOW,
@@ -460,6 +474,8 @@ class EnvOptions:
                 " | ".join(REWARDS) + f" (difference: snapshot mode with team_objective utility; here mode "
                 f"{self.mode}, team_objective {self.team_objective})",
             )
+        if self.decision_order != "simultaneous" and self.mode != "snapshot":
+            refuse("decision_order", self.decision_order, "simultaneous unless mode is snapshot")
         if self.shadow_field and self.mode != "snapshot":
             refuse("shadow_field", self.shadow_field, "false unless mode is snapshot")
         if self.settle_steps >= self.max_cycles:

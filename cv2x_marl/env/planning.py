@@ -382,7 +382,7 @@ def sensing_plan(
 MEASURED_REPLAN_EVERY = 10
 
 
-def measured_row(env: PlanningEnv, mover: int) -> Any:
+def measured_row(env: PlanningEnv, mover: int, positions_m: FloatArray | None = None) -> Any:
     """The mover's links as it estimates them from its measurements (observation version 3).
 
     Like :meth:`cv2x_marl.sim.ground_truth.SnapshotLinks.sensed_row`, but the own links' shadowing is what
@@ -395,6 +395,9 @@ def measured_row(env: PlanningEnv, mover: int) -> Any:
     Args:
         env: a snapshot-mode env with observation version 3 (its ``measure``).
         mover: the vehicle index.
+        positions_m: [N, 2] where the row puts the other vehicles (m; the coordination channel's announced moves,
+            :mod:`cv2x_marl.env.turns`); the shadowing is still the one measured where they are now. None: where
+            they are now.
     """
     links = env.links
     if not links.compiled:
@@ -412,6 +415,8 @@ def measured_row(env: PlanningEnv, mover: int) -> Any:
     shadow[i] = 0.0
     gain = np.full((n, n), float(links.eirp_dbm))
     gain[i, :] = gain[:, i] = links.eirp_dbm - shadow
+    if positions_m is not None:
+        pos = np.ascontiguousarray(positions_m, dtype=np.float64)
     row = MoverRow(links, i, pos)
     (period, los, _gain, wb1, range2, idx, val, *_rest) = links.kernel_args
     gain = np.ascontiguousarray(gain)

@@ -8,6 +8,9 @@ the Gymnasium / PettingZoo registration. The defaults of each id are
                           batched by :class:`~cv2x_marl.env.vector.SingleMoverVectorEnv`
                           (``gymnasium.make_vec(..., "vector_entry_point")``)
     cv2x/Cooperative-v0   PettingZoo, every vehicle moves for the team objective (v3 observations)
+    cv2x/Cooperative-v1   Cooperative-v0 with the coordination channel: the AEC API in the order of the vehicles'
+                          transmission subframes, each seeing the moves announced before it
+                          (:mod:`~cv2x_marl.env.turns`)
     cv2x/Traffic-v0       Gymnasium and PettingZoo: vehicles drive (lane model), vehicle 0 commands its speed and
                           lane (``movers=None`` in PettingZoo: every vehicle drives its own)
     cv2x/Traffic-v1       Traffic-v0 observing what the mover measured on the road (observation version 4)
@@ -23,8 +26,8 @@ Gymnasium / PettingZoo is already imported, else when it is imported (an import 
 so a fresh process (a Ray worker, a subprocess) resolves the Gymnasium ids with
 ``gymnasium.make("cv2x_marl:cv2x/SingleMover-v2")``, which imports the package first; PettingZoo has
 no such syntax: frameworks take the factories (``parallel_env``, ``parallel_env_v1`` .. ``parallel_env_v3``,
-``parallel_env_cooperative``, ``parallel_env_traffic``, ``parallel_env_traffic_v1`` and their AEC ``env*``, also
-attributes of :mod:`cv2x_marl.env`) instead.
+``parallel_env_cooperative``, ``parallel_env_cooperative_v1``, ``parallel_env_traffic``, ``parallel_env_traffic_v1``
+and their AEC ``env*``, also attributes of :mod:`cv2x_marl.env`) instead.
 
 This module imports only the standard library (and the defaults table) at its top, so the CLI reads
 :data:`ENV_IDS` for its
@@ -126,6 +129,16 @@ SPECS: tuple[EnvSpec, ...] = (
         "PettingZoo, every vehicle moves for the team objective (observation version 3)",
     ),
     EnvSpec(
+        "cv2x/Cooperative-v1",
+        "cooperative-v1",
+        ("pettingzoo",),
+        "arguments",
+        "_cooperative_v1",
+        False,
+        "Cooperative-v0 with the coordination channel: the AEC API takes the vehicles in the order of their "
+        "transmission subframes, each observing the moves announced earlier in the period",
+    ),
+    EnvSpec(
         "cv2x/Traffic-v0",
         "traffic-v0",
         ("gymnasium", "pettingzoo"),
@@ -171,7 +184,7 @@ def spec_of(env_id: str) -> EnvSpec:
 
 def env_version(env_id: str) -> str:
     """The key of a registered id's defaults in :data:`~cv2x_marl.env.defaults.VERSION_DEFAULTS` (``v0`` ..
-    ``v3``; ``cooperative-v0``; ``traffic-v0`` / ``traffic-v1``); unknown ids are refused with the list."""
+    ``v3``; ``cooperative-v0`` / ``-v1``; ``traffic-v0`` / ``traffic-v1``); unknown ids are refused with the list."""
     return spec_of(env_id).defaults
 
 
@@ -194,10 +207,17 @@ def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
 
 
 def make_aec_env(env_id: str, **kwargs: Any) -> Any:
-    """The AEC version of :func:`make_parallel_env` with PettingZoo's order-enforcing wrapper (``parallel_to_aec``)."""
+    """The AEC version of :func:`make_parallel_env` with PettingZoo's order-enforcing wrapper: ``parallel_to_aec``,
+    or with ``decision_order="subframe"`` (``cv2x/Cooperative-v1``) :class:`~cv2x_marl.env.turns.SubframeAECEnv`
+    (the agents in the order of their transmission subframes, each seeing the moves announced before it)."""
     from pettingzoo.utils.conversions import parallel_to_aec
 
-    return parallel_to_aec(make_parallel_env(env_id, **kwargs))
+    par = make_parallel_env(env_id, **kwargs)
+    if par.options.decision_order == "subframe":
+        from cv2x_marl.env.turns import subframe_aec
+
+        return subframe_aec(par)
+    return parallel_to_aec(par)
 
 
 def raw_env(**kwargs: Any) -> Any:

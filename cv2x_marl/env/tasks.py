@@ -6,6 +6,8 @@ refuses.
     cooperative   cv2x/Cooperative-v0   every vehicle moves (PettingZoo), reward = the team objective
     traffic       cv2x/Traffic-v0       vehicles drive (Gymnasium), the mover commands its speed and lane
                   (variant cv2x/Traffic-v1: the same task observing what the mover measured, :data:`VARIANTS`)
+    (variant of cooperative: cv2x/Cooperative-v1, the same task with the coordination channel: the vehicles
+     decide in the order of their transmission subframes, each seeing the moves announced before it)
 
 The episode seeds are package constants, drawn once at import from named ``SeedSequence`` s
 (:data:`PROTOCOL_ENTROPY`, the task's name, the list's kind), so they are the same on every machine
@@ -151,10 +153,10 @@ TASKS: Mapping[str, Task] = MappingProxyType(
 
 
 #: env ids that are variants of a task (the same episodes, dynamics, reward, methods and refusals; another
-#: observation) without being tasks of the benchmark themselves: ``evaluate --seeds heldout | train`` runs the
-#: task's lists on them, so their scores compare with the task's episode by episode; the lists stay the task's
-#: own (no new list, nothing else changes)
-VARIANTS: Mapping[str, str] = MappingProxyType({"cv2x/Traffic-v1": "traffic"})
+#: observation or another order of decisions) without being tasks of the benchmark themselves: ``evaluate --seeds
+#: heldout | train`` runs the task's lists on them, so their scores compare with the task's episode by episode; the
+#: lists stay the task's own (no new list, nothing else changes)
+VARIANTS: Mapping[str, str] = MappingProxyType({"cv2x/Traffic-v1": "traffic", "cv2x/Cooperative-v1": "cooperative"})
 
 
 def get_task(name: str, tasks: Mapping[str, Task] | None = None) -> Task:

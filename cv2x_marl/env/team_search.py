@@ -275,6 +275,32 @@ def team_moves(
     return pos if sequential else out
 
 
+def team_move(
+    env: PlanningEnv,
+    i: int,
+    positions_m: FloatArray,
+    normalise: bool = True,
+    grids_m: Sequence[float] = TEAM_GRIDS_M,
+    tol: float = 1e-12,
+) -> FloatArray:
+    """[2] vehicle ``i``'s best reachable position for the team objective ``J`` with the others at ``positions_m``
+    (one single move of :func:`team_search`, as :func:`team_moves`; its reachable set from where it is now).
+
+    Args:
+        env: a snapshot-mode env (its links, ``p_min``, the vehicle's reachable set now).
+        i: the vehicle.
+        positions_m: [N, 2] where every vehicle is taken to be (m; row ``i``: where ``i`` is now).
+        normalise, grids_m, tol: as :func:`team_moves`.
+    """
+    pos = np.array(positions_m, dtype=np.float64)
+    reach = reachable_set(env, i)
+    coarse = {i: _lattice_in(reach, reach.start_m, np.inf, float(grids_m[0]))}
+    objective = TeamObjective(env.links, env.p_min, normalise)
+    j_now = objective.set_positions(pos)
+    moved, _ = _single_move(objective, pos, j_now, i, {i: reach}, coarse, grids_m, tol)
+    return moved[i].copy()
+
+
 def _thin(points: FloatArray, count: int) -> FloatArray:
     """At most ``count`` of ``points`` [M, 2], evenly spaced in their order."""
     if points.shape[0] <= count:

@@ -9,6 +9,9 @@
     optimum             :class:`~cv2x_marl.policies.optimum.OptimumPolicy` (best response under the simulator;
                         the team search where the team is rewarded and every vehicle moves)
     best-response       :class:`~cv2x_marl.policies.optimum.BestResponsePolicy` (best response always)
+    sequential-best-response | sequential-sensing | sequential-team
+                        :mod:`cv2x_marl.policies.sequential` (``decision_order="subframe"``, ``cv2x/Cooperative-v1``:
+                        each vehicle re-plans at its subframe's turn, hearing the moves announced before it)
     ppo:PATH            a learned model file ``cv2x-marl train`` writes: a ``.zip``:
                         :class:`~cv2x_marl.policies.ppo.PpoPolicy` (stable-baselines3); a ``.pt``, by its format:
                         :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor) or
@@ -31,6 +34,7 @@ from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
+from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy
 from cv2x_marl.policies.torch_ppo import load_pt_policy
 from cv2x_marl.policies.utility_map import UtilityMapPolicy, is_map_file
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
@@ -39,7 +43,10 @@ if TYPE_CHECKING:
     from cv2x_marl.env.mobility_env import MobilityEnv
 
 #: the scripted policies, by name (what a baseline file's ``policy:`` may name)
-SCRIPTED = ("static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum", "best-response")
+SCRIPTED = (
+    "static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum", "best-response",
+    "sequential-best-response", "sequential-sensing", "sequential-team",
+)  # fmt: skip
 #: the scripted policies that read a two-distance model
 MODELLED = ("gbmu", "greedy", "planner", "sensing")
 #: the prefix of a PPO model file (``ppo:PATH``)
@@ -48,7 +55,10 @@ PPO_PREFIX = "ppo:"
 
 #: the scripted policies whose actions are position offsets (``max_step_m`` steps): refused where an
 #: action means something else (traffic mode with ``traffic_action="speed"``: speed and lane commands)
-OFFSET_POLICIES = ("gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response")
+OFFSET_POLICIES = (
+    "gbmu", "greedy", "oracle", "planner", "sensing", "optimum", "best-response", "sequential-best-response",
+    "sequential-sensing", "sequential-team",
+)  # fmt: skip
 
 
 #: the scripted policies with a road version (:mod:`cv2x_marl.policies.traffic`) where the movers drive with
@@ -86,7 +96,8 @@ def refuse_action_space(spec: str, env: MobilityEnv) -> None:
 
 
 def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delta: float = 100.0) -> Policy:
-    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response | ppo:PATH``.
+    """``static | random | gbmu | greedy | oracle | planner | sensing | optimum | best-response |
+    sequential-best-response | sequential-sensing | sequential-team | ppo:PATH``.
 
     Args:
         spec: the policy's name (:data:`SCRIPTED`) or ``ppo:PATH``.
@@ -118,6 +129,12 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         return OptimumPolicy(env)
     if spec == "best-response":
         return BestResponsePolicy(env)
+    if spec == "sequential-best-response":
+        return SequentialBestResponsePolicy(env)
+    if spec == "sequential-sensing":
+        return SequentialSensingPolicy(env)
+    if spec == "sequential-team":
+        return SequentialTeamPolicy(env)
     if spec in ("planner", "sensing"):
         estimator = "model" if spec == "planner" else "sensing"
         return PlannerPolicy(env, load_model(Path(model_path)), estimator=estimator)

@@ -35,11 +35,15 @@ def test_version_defaults() -> None:
     assert (v1.observation, v1.reward_form, v1.normalise_reward) == (1, "improvement", True)
     assert EnvOptions.from_mapping({"reward_form": "utility"}, "v2").reward_form == "utility"
     assert EnvOptions.from_mapping({}, "v2").observation == 2
-    assert set(VERSION_DEFAULTS) == {"v0", "v1", "v2", "v3", "cooperative-v0", "traffic-v0", "traffic-v1"}
+    assert set(VERSION_DEFAULTS) == {
+        "v0", "v1", "v2", "v3", "cooperative-v0", "cooperative-v1", "traffic-v0", "traffic-v1",
+    }  # fmt: skip
     v3 = EnvOptions.from_mapping({}, "v3")
     assert (v3.observation, v3.shadow_field, v3.reward_form, v3.normalise_reward) == (3, True, "improvement", True)
     coop = EnvOptions.from_mapping({}, "cooperative-v0")
     assert (coop.observation, coop.shadow_field, coop.reward) == (3, True, "team")
+    assert coop.decision_order == "simultaneous"
+    assert EnvOptions.from_mapping({}, "cooperative-v1") == dataclasses.replace(coop, decision_order="subframe")
     assert (EnvOptions().sensing_window, EnvOptions().rsrp_error_db, EnvOptions().shadow_field) == (10, 3.0, False)
     with pytest.raises(ValueError, match="unknown env version 'v9'"):
         EnvOptions.from_mapping({}, "v9")
