@@ -27,7 +27,14 @@ from typing import Any
 
 from cv2x_marl.checks import is_int
 from cv2x_marl.rl.errors import TrainError
-from cv2x_marl.rl.train_config import MAX_COPIES, PPO_REALS, check_reals, env_arguments, read_sections, with_cli_values
+from cv2x_marl.rl.train_config import (
+    MAX_COPIES,
+    PPO_REALS,
+    check_pooled_env,
+    check_reals,
+    read_sections,
+    with_cli_values,
+)
 from cv2x_marl.yamlcore import load_mapping
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
@@ -135,23 +142,10 @@ class MappoConfig:
         if self.copies > MAX_COPIES:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
         object.__setattr__(self, "eval_seed", count_at_least("train.eval_seed", self.eval_seed, low=0))
-        if not isinstance(self.env, dict):
-            raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
-        allowed = env_arguments(self.env_id)
-        bad = sorted(str(k) for k in self.env if k not in allowed)
-        if bad:
-            raise TrainError(
-                f"unknown env argument(s) {bad} in train.env of {self.env_id}; arguments: {', '.join(allowed)}"
-            )
+        check_pooled_env(self.env_id, self.env, "MAPPO")
         for key in ("reward", "movers"):  # the critic's one value per step needs the team reward and every mover
             if key in self.env:
                 raise TrainError(f"train.env.{key}: MAPPO keeps {self.env_id}'s own {key} (leave the key out)")
-        pool = self.env.get("start_pool")
-        if not is_int(pool) or int(pool) < 1:  # type: ignore[arg-type]
-            raise TrainError(
-                f"train.env.start_pool must be an integer >= 1 (MAPPO trains on the protocol's first start_pool "
-                f"training seeds), got {pool!r}"
-            )
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

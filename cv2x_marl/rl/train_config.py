@@ -226,6 +226,27 @@ def env_arguments(env_id: str) -> tuple[str, ...]:
     return tuple(n for n in option_names() if n not in skip)
 
 
+def check_pooled_env(env_id: str, env: Any, trainer: str) -> None:
+    """Check a ``train.env`` mapping of a trainer that draws its episodes from the start pool (MAPPO, the utility
+    map): a mapping of the id's env arguments (unknown ones named with the allowed ones) with ``start_pool`` >= 1.
+
+    Raises:
+        TrainError: naming the key and the allowed values.
+    """
+    if not isinstance(env, dict):
+        raise TrainError(f"train.env must be a mapping of env arguments, got {env!r}")
+    allowed = env_arguments(env_id)
+    bad = sorted(str(k) for k in env if k not in allowed)
+    if bad:
+        raise TrainError(f"unknown env argument(s) {bad} in train.env of {env_id}; arguments: {', '.join(allowed)}")
+    pool = env.get("start_pool")
+    if not is_int(pool) or int(pool) < 1:  # type: ignore[arg-type]
+        raise TrainError(
+            f"train.env.start_pool must be an integer >= 1 ({trainer} trains on the protocol's first start_pool "
+            f"training seeds), got {pool!r}"
+        )
+
+
 #: what a run folder's ``train_config.json`` holds besides the configuration (and ``algo``, read by the CLI)
 RUN_KEYS = ("seed", "timesteps", "algo")
 

@@ -48,7 +48,7 @@ from cv2x_marl.policies.utility_map import (
 )
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
-from cv2x_marl.rl.train_config import MAX_COPIES, check_reals, env_arguments, read_sections, with_cli_values
+from cv2x_marl.rl.train_config import MAX_COPIES, check_pooled_env, check_reals, read_sections, with_cli_values
 
 #: the env ids the map trains on (observation version 3, one mover in a snapshot)
 MAP_ENV_IDS = ("cv2x/SingleMover-v3",)
@@ -123,20 +123,7 @@ class MapConfig:
             object.__setattr__(self, name, count_at_least(f"train.{name}", getattr(self, name)))
         if self.copies > MAX_COPIES:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
-        if not isinstance(self.env, dict):
-            raise TrainError(f"train.env must be a mapping of env arguments, got {self.env!r}")
-        allowed = env_arguments(self.env_id)
-        bad = sorted(str(k) for k in self.env if k not in allowed)
-        if bad:
-            raise TrainError(
-                f"unknown env argument(s) {bad} in train.env of {self.env_id}; arguments: {', '.join(allowed)}"
-            )
-        pool = self.env.get("start_pool")
-        if not is_int(pool) or int(pool) < 1:  # type: ignore[arg-type]
-            raise TrainError(
-                "train.env.start_pool must be an integer >= 1 (the map trains on the protocol's first start_pool "
-                f"training seeds), got {pool!r}"
-            )
+        check_pooled_env(self.env_id, self.env, "the utility map")
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
