@@ -8,6 +8,7 @@ the data is that the refactored code is compared with the code before it.
     PYTHONPATH=$PWD python tests/reference/record.py env prr         # some parts only
     PYTHONPATH=$PWD python tests/reference/record.py parts           # test_references_parts.py's cases, recorded
                                                                      # at 265a803, before the env-as-parts refactor
+    PYTHONPATH=$PWD python tests/reference/record.py parts=NAME,...  # only these cases (a new id), the others kept
     PYTHONPATH=$PWD python tests/reference/record.py heldout=multi-ppo0,multi-ppo1   # some held-out rows only
     PYTHONPATH=$PWD python benchmarks/check_references.py --record   # the full held-out tables (~30 min)
 
@@ -76,13 +77,20 @@ def record_heldout(only: list[str] | None = None) -> None:
     path.write_text(json.dumps({"runs": runs}, indent=1) + "\n")
 
 
-def record_parts() -> None:
+def record_parts(only: list[str] | None = None) -> None:
     """The references of ``test_references_parts.py`` (the env ids the first set does not cover), recorded
-    before the env is split into parts (``tests/data/reference_38/``)."""
+    before the env is split into parts (``tests/data/reference_38/``); ``only``: record these cases (an id added
+    later) and keep every other case's arrays as they are."""
     import test_references_parts as p
 
     arrays: dict[str, np.ndarray] = {}
-    for name in p.CASES:
+    if only is not None:
+        unknown = sorted(set(only) - set(p.CASES))
+        if unknown:
+            raise SystemExit(f"unknown parts case(s) {unknown}; cases: {', '.join(p.CASES)}")
+        with np.load(p.DATA / "trajectories.npz") as old:
+            arrays = {k: old[k] for k in old.files if k.split("/", 1)[0] not in only}
+    for name in only if only is not None else p.CASES:
         t0 = time.perf_counter()
         for k, v in p.play_case(name).items():
             arrays[f"{name}/{k}"] = v
@@ -99,6 +107,9 @@ def main() -> None:
     for part in parts:
         if part.startswith("heldout="):
             record_heldout(part.split("=", 1)[1].split(","))
+            continue
+        if part.startswith("parts="):
+            record_parts(part.split("=", 1)[1].split(","))
             continue
         {"env": record_env, "prr": record_prr, "heldout": record_heldout, "parts": record_parts}[part]()
 

@@ -1,6 +1,7 @@
 """Behaviour references of every env id the first reference set (``test_references.py``, recorded before the
 one-env-core refactor) does not cover: ``cv2x/Mobility-v3``, ``cv2x/SingleMover-v3``, ``cv2x/Cooperative-v0``,
-``cv2x/Traffic-v0`` and ``cv2x/Traffic-v1``, through every route a user takes to them (``pettingzoo.make``, the
+``cv2x/Traffic-v0``, ``cv2x/Traffic-v1`` and ``cv2x/Cooperative-v1`` (recorded when it was added, with
+``record.py parts=NAME,...``), through every route a user takes to them (``pettingzoo.make``, the
 AEC factories, ``gymnasium.make``, the Gymnasium vector entry point, ``make_parallel_env``) and with the options
 that take their own code paths (difference reward, speed changes, measurement windows and errors, privileged
 observations).
@@ -92,6 +93,10 @@ CASES: dict[str, tuple[str, str, dict[str, Any], int, int]] = {
     ),
     "traffic-v1-parallel": ("parallel", "cv2x/Traffic-v1", {"max_cycles": 4}, 71, 4),
     "traffic-v1-aec": ("aec", "env_traffic_v1", {"max_cycles": 3}, 72, 3),
+    # cv2x/Cooperative-v1: decisions in subframe order (recorded when the id was added, after the refactor)
+    "cooperative-v1": ("parallel", "cv2x/Cooperative-v1", {"max_cycles": 6}, 73, 7),
+    "cooperative-v1-aec": ("aec", "env_cooperative_v1", {"max_cycles": 3}, 74, 3),
+    "cooperative-v1-mpe": ("mpe", "cv2x/Cooperative-v1", {"max_cycles": 5}, 75, 5),
 }
 
 
