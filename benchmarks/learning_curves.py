@@ -4,7 +4,9 @@ GBMU on the same ``eval_episodes`` episodes from ``eval_seed``, outside the held
 
     python benchmarks/learning_curves.py [--models agents/models] [--out docs/benchmark/learners]
 
-Writes ``learning-<task>.png`` for every task with shipped models.
+Writes ``learning-<task>.png`` for every task with shipped models, and the learned utility maps' curves
+(their ``curve.csv``: utility gain against CPU seconds) as ``docs/benchmark/learners-map/learning-singlemover-map.png``
+(``--maps-out``).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--models", type=Path, default=Path("agents/models"))
     p.add_argument("--out", type=Path, default=Path("docs/benchmark/learners"))
+    p.add_argument("--maps-out", type=Path, default=Path("docs/benchmark/learners-map"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     for task, prefix in PREFIXES.items():
@@ -43,6 +46,15 @@ def main(argv: list[str] | None = None) -> int:
                 curves, args.out / f"learning-{task}.png", f"{task}: training on {env_id}"
             )
             print(f"wrote {path} ({len(curves)} runs)")
+    maps = {}
+    for run in sorted(args.models.glob("singlemover-map_seed*")):
+        with (run / "curve.csv").open(newline="") as fh:
+            maps[run.name] = list(csv.DictReader(fh))
+    if maps:
+        args.maps_out.mkdir(parents=True, exist_ok=True)
+        title = "singlemover: the learned utility map on cv2x/SingleMover-v3"
+        path = plotting.plot_gain_vs_cpu(maps, args.maps_out / "learning-singlemover-map.png", title)
+        print(f"wrote {path} ({len(maps)} runs)")
     return 0
 
 

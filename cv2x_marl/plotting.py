@@ -262,6 +262,24 @@ def plot_return_vs_cpu(rows: list[dict[str, Any]], path: str | Path, title: str)
     return _save(fig, path)
 
 
+def plot_gain_vs_cpu(curves: dict[str, list[dict[str, Any]]], path: str | Path, title: str) -> Path:
+    """The utility gain of a run's evaluations during training against its process CPU seconds, one line per
+    run: ``curves`` maps a run's name to the rows of its ``curve.csv`` (``cpu_s``, ``eval_utility_gain``; rows
+    without an evaluation, an empty value, are left out)."""
+    fig, ax = _subplots(figsize=(7, 4), constrained_layout=True)
+    for name, rows in curves.items():
+        kept = [r for r in rows if r["eval_utility_gain"] not in ("", None)]
+        cpu_s = [float(r["cpu_s"]) for r in kept]
+        ax.plot(cpu_s, [100 * float(r["eval_utility_gain"]) for r in kept], "o-", ms=3, label=name)
+    ax.set_xlabel("process CPU seconds (collection, fitting and these evaluations)")
+    ax.set_ylabel("utility gain, training-list episodes (%)")
+    ax.grid(alpha=0.3)
+    if len(curves) > 1:
+        ax.legend(fontsize=8)
+    ax.set_title(title)
+    return _save(fig, path)
+
+
 def plot_sweep(result: dict[str, Any], path: str | Path) -> Path:
     """Held-out utility gain per grid point of a sweep: mean +- std bar, one dot per training seed."""
     points = result["points"]

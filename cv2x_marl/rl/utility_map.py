@@ -412,22 +412,11 @@ def _write_curve(run_dir: Path, rows: list[dict[str, Any]]) -> None:
         w.writeheader()
         w.writerows(rows)
     try:
-        import matplotlib
+        from cv2x_marl import plotting
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # the figure needs the plotting extra; the CSV is the data
+        plotting.plot_gain_vs_cpu({"run": rows}, run_dir / "curve.png", "learned utility map")
+    except ImportError:  # the figure needs matplotlib; the CSV is the data
         return
-    pts = [(r["cpu_s"], r["eval_utility_gain"]) for r in rows if r["eval_utility_gain"] != ""]
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    ax.plot([p[0] for p in pts], [100 * p[1] for p in pts], marker="o")
-    ax.set_xlabel("process CPU time (s)")
-    ax.set_ylabel("utility gain, training-list episodes (%)")
-    ax.set_title("learned utility map")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(run_dir / "curve.png", dpi=120)
-    plt.close(fig)
 
 
 def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
