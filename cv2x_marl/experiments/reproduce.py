@@ -43,16 +43,19 @@ KEYS = ("mean_utility_gain", "effectiveness", "mean_prr_gain", "jain_fairness", 
 
 #: what ``--models`` says to leave the PPO models out
 NO_MODELS = "none"
-#: the shipped learners of each benchmark task, under the models folder (a glob: the training runs of one method)
+#: the shipped learners of each benchmark task, under the models folder (a glob: the training runs of one method);
+#: ``TASK`` (the default label) or ``TASK/LABEL``
 BENCHMARK_MODELS = {
     "singlemover": "singlemover-v3_seed*/model.zip",
+    "singlemover/map": "singlemover-map_seed*/model.npz",
     "cooperative": "cooperative_seed*/model.pt",
     "traffic": "traffic_seed*/model.zip",
 }
 
 
 def benchmark_models(models_dir: Path | None) -> list[str]:
-    """``TASK=ppo:GLOB`` of every benchmark task whose shipped learners ``models_dir`` holds (none: scripts only)."""
+    """``TASK[/LABEL]=ppo:GLOB`` of every benchmark task whose shipped learners ``models_dir`` holds (none: scripts
+    only)."""
     if models_dir is None:
         return []
     return [
@@ -319,7 +322,8 @@ def _markdown(r: dict[str, Any]) -> str:
             "",
             f"## The benchmark ({'every' if n is None else n} held-out episode{'s' if n != 1 else ''} per task)",
             "",
-            "Every task's scripts, its ceiling and the shipped learners (`ppo`: their training runs pooled) on the "
+            "Every task's scripts, its ceiling and the shipped learners (`ppo`, and `map` on singlemover: the learned "
+            "utility map; each its training runs pooled) on the "
             "same held-out episodes; utility gain and share of the ceiling as IQM with 95 % bootstrap intervals "
             "(docs/benchmark.md). With few episodes the intervals are wide: `cv2x-marl benchmark` runs them all.",
             "",
