@@ -61,6 +61,7 @@ from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import BatchPolicy
 from cv2x_marl.policies.torch_ppo import MODEL_FORMAT
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.ppo_step import LOSS_KEYS, ppo_minibatch_step
 from cv2x_marl.rl.train_checks import check_training_config
 from cv2x_marl.rl.train_config import TrainConfig
 from cv2x_marl.runs import RunFolder
@@ -272,7 +273,7 @@ class FastPpo:
 
         p = self.cfg.ppo
         n = data.batch_size[0]
-        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0}
+        sums = dict.fromkeys(LOSS_KEYS, 0.0)
         count = 0
         params = list(self.net.parameters())
         for _ in range(p.n_epochs):
@@ -281,17 +282,7 @@ class FastPpo:
                 idx = order[start : start + p.batch_size]
                 if idx.numel() < 2:  # the advantage is normalised over the mini-batch
                     continue
-                out = self.loss(data[idx])
-                total = out["loss_objective"] + out["loss_critic"]
-                if "loss_entropy" in out.keys():
-                    total = total + out["loss_entropy"]
-                self.optim.zero_grad()
-                total.backward()
-                torch.nn.utils.clip_grad_norm_(params, p.max_grad_norm)
-                self.optim.step()
-                for key in sums:
-                    if key in out.keys():
-                        sums[key] += float(out[key].detach())
+                ppo_minibatch_step(self.loss, data[idx], self.optim, params, p.max_grad_norm, sums)
                 count += 1
         return {k: v / max(count, 1) for k, v in sums.items()}
 

@@ -55,6 +55,7 @@ from cv2x_marl.policies.base import BatchPolicy
 from cv2x_marl.policies.mappo import MODEL_FORMAT
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import MappoConfig, load_mappo_config
+from cv2x_marl.rl.ppo_step import LOSS_KEYS, ppo_minibatch_step
 from cv2x_marl.rl.train import StopRequest, TrainingInterrupted, check_resume_config, run_settings, write_eval_rows
 from cv2x_marl.runs import RunFolder
 
@@ -265,7 +266,7 @@ class Mappo:
             [b, n_],
         )
         data = TensorDict({GROUP: agents, "state": states[:, :-1].reshape(b, -1)}, [b])
-        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0}
+        sums = dict.fromkeys(LOSS_KEYS, 0.0)
         count = 0
         with torch.random.fork_rng(devices=[]):
             torch.random.set_rng_state(self.torch_state)
@@ -275,17 +276,7 @@ class Mappo:
                     idx = order[start : start + m.minibatch_steps]
                     if idx.numel() < 2:  # the advantage is normalised over the mini-batch
                         continue
-                    out = self.loss(data[idx])
-                    total = out["loss_objective"] + out["loss_critic"]
-                    if "loss_entropy" in out.keys():
-                        total = total + out["loss_entropy"]
-                    self.optim.zero_grad()
-                    total.backward()
-                    torch.nn.utils.clip_grad_norm_(self.params, m.max_grad_norm)
-                    self.optim.step()
-                    for key in sums:
-                        if key in out.keys():
-                            sums[key] += float(out[key].detach())
+                    ppo_minibatch_step(self.loss, data[idx], self.optim, self.params, m.max_grad_norm, sums)
                     count += 1
             self.torch_state = torch.random.get_rng_state()
         return {k: v / max(count, 1) for k, v in sums.items()}

@@ -342,15 +342,12 @@ class _MapRun:
         return total / (s.fit_steps * len(self.nets))
 
     def evaluate(self) -> dict[str, Any]:
-        from cv2x_marl.env import make_parallel_env
         from cv2x_marl.env.seeds import training_pool
         from cv2x_marl.experiments.evaluate import evaluate
 
         pool = int(self.cfg.env["start_pool"])
         seeds = training_pool(pool + self.cfg.eval_episodes)[pool:]
-        env = make_parallel_env(self.cfg.env_id, **self.cfg.env)
-        policy = UtilityMapPolicy(self.current_map(), env)
-        env.close()
+        policy = UtilityMapPolicy(self.current_map(), self.par)  # reads the env's layout and step size only
         return evaluate(self.cfg.env_id, policy, len(seeds), 0, None, self.cfg.env, progress=False, seeds=seeds)
 
     def train(self, timesteps: int, run_dir: Path, progress: bool) -> dict[str, Any]:
