@@ -19,9 +19,10 @@ registered with :func:`register_dynamics`, and its rule in :func:`action_kind`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
+from gymnasium import spaces
 from numpy.typing import NDArray
 
 from cv2x_marl.env import step as step_core
@@ -45,6 +46,8 @@ def action_kind(options: EnvOptions) -> str:
         return options.action_mode
     if options.traffic_action == "offset":
         return "road_offset"
+    if options.traffic_action == "resource":
+        return "resource"
     return "speed_change" if options.speed_command == "change" else "target_speed"
 
 
@@ -58,9 +61,32 @@ class Dynamics:
 
     kind: ClassVar[str] = ""
     residual: ClassVar[bool] = False
+    #: the simulator's scheduler keeps its selections' sensing (traffic mode, ``SpsScheduler.record_selections``)
+    record_selections: ClassVar[bool] = False
 
     def __init__(self, env: EpisodeEnv) -> None:
         self.env = env
+
+    def action_space(self) -> spaces.Space[Any]:
+        """Every agent's action space: a position offset or a speed command, ``Box(-1, 1, (2,))``."""
+        return spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    @property
+    def null_action(self) -> Any:
+        """The action of an agent that does nothing (what a one-agent view gives the vehicles it does not drive)."""
+        return np.zeros(2, dtype=np.float32)
+
+    def decode(self, actions: Any) -> Any:
+        """A step's actions checked, laid out by vehicle index (:func:`~cv2x_marl.env.step.decode_actions`: [N, 2])."""
+        env = self.env
+        return step_core.decode_actions(actions, env._live, env.agents, env.possible_agents, env.agent_index)
+
+    def infos(self, infos: dict[str, dict[str, Any]]) -> None:
+        """Add the kind's own entries to every agent's info (none)."""
+
+    def action_masks(self) -> NDArray[np.int8] | None:
+        """[N, n] the valid actions of a discrete action kind (None: a continuous one, every action valid)."""
+        return None
 
     def start(self, episode_seed: int) -> None:
         """A fresh start (after the simulator's stage-1 run, ``env.snapshot``): what the links need."""

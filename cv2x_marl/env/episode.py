@@ -41,6 +41,10 @@ class EpisodeEnv(PlanningEnv, Protocol):
             received powers (observation models with ``needs_rx``).
         own: the own state (observation versions >= 1), measure / traffic_measure: the measurements (3, 4).
         observer, dynamics, rewarder: the parts.
+        agents, possible_agents, agent_index, _live, mover_mask: the agents now, all of them, their vehicle
+            indices, the names that must act this step, who moves.
+        pending: ``traffic_action="resource"``: the decisions of the coming step
+            (:class:`~cv2x_marl.env.resource.PendingChoices`).
         step_scale_m: [N] the step of a full action (m); drift_m: the drift bound (inf: none); horizon: steps.
     """
 
@@ -79,6 +83,10 @@ class EpisodeEnv(PlanningEnv, Protocol):
     wrap_road: Any
     possible_agents: list[str]
     agents: list[str]
+    agent_index: dict[str, int]
+    mover_mask: NDArray[np.bool_]
+    _live: set[str]
+    pending: Any
     info_keys: tuple[str, ...]
     mover_links: Any
     mover_rows: NDArray[np.int64]

@@ -22,6 +22,7 @@ from pettingzoo import ParallelEnv
 
 from cv2x_marl.config import ConfigError
 from cv2x_marl.env import mover_step, starts
+from cv2x_marl.env import resource as _resource  # noqa: F401 - registers the resource action kind and observation 5
 from cv2x_marl.env import step as step_core
 from cv2x_marl.env.dynamics import TargetSpeed, dynamics_model
 from cv2x_marl.env.infos import DRIVE_INFO_KEYS, EPISODE_INFO_KEYS, INFO_KEYS, global_state, infos_of
@@ -141,7 +142,7 @@ class MobilityEnv(ParallelEnv):
         self._np_random: np.random.Generator | None = None
         clip = self.layout.obs_clip
         self._obs_space = spaces.Box(-clip, clip, (self.layout.size,), np.float32)
-        self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self._act_space = self.dynamics.action_space()
         state_size = self.n * 6 + self.observer.state_per_pair * self.n * self.n
         self.state_space = spaces.Box(-clip, clip, (state_size,), np.float32)
         self.agents: list[str] = []
@@ -171,8 +172,13 @@ class MobilityEnv(ParallelEnv):
     def observation_space(self, agent: str) -> spaces.Box:
         return self._obs_space
 
-    def action_space(self, agent: str) -> spaces.Box:
+    def action_space(self, agent: str) -> spaces.Space[Any]:
         return self._act_space
+
+    def action_masks(self) -> NDArray[np.int8] | None:
+        """[N, n] every vehicle's valid actions now (``cv2x/Resource-v0``: the entries of its candidate list; also its
+        info's ``action_mask``); None where the action space is continuous."""
+        return self.dynamics.action_masks()
 
     # ------------------------------------------------------------------- reset
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
@@ -205,13 +211,14 @@ class MobilityEnv(ParallelEnv):
             starts.store_start(self, episode_seed)
         obs = self.observations()
         infos = infos_of(self, np.zeros((self.n, 2)), np.zeros(self.n, dtype=bool))
+        self.dynamics.infos(infos)
         return obs, infos
 
     # -------------------------------------------------------------------- step
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
             raise RuntimeError("step() called on a finished episode: call reset()")
-        act = step_core.decode_actions(actions, self._live, self.agents, self.possible_agents, self.agent_index)
+        act = self.dynamics.decode(actions)
         applied, clipped = self.dynamics.move(act, self.t >= self.max_cycles - self.settle_steps)
         self.t += 1
         self.tracks.append(self.positions_m.copy())
@@ -230,6 +237,7 @@ class MobilityEnv(ParallelEnv):
         terms = dict.fromkeys(agents, False)
         truncs = dict.fromkeys(agents, done)
         infos = infos_of(self, applied, clipped)
+        self.dynamics.infos(infos)
         if done:
             self.finish()
         if self.render_mode == "human":

@@ -116,13 +116,38 @@ FEATURES_V4 = len(FEATURES_V4_NAMES)
 #: the own entries of observation version 4, in order (the driving entries follow)
 OWN_V4_NAMES = ("slot", "subchannel", "counter", "release", "utility", "utility_change_x10")
 OWN_V4 = len(OWN_V4_NAMES)
+#: entries of a vehicle's candidate list (the action space's size, ``Discrete(N_CANDIDATES)``): the 3GPP rule's
+#: list at a selection window of 100 candidates (``ceil(0.2 M)``, TS 36.213 14.1.1.6 step 8)
+N_CANDIDATES = 20
+#: what observation version 5 carries per candidate, in order
+CANDIDATE_NAMES = (
+    "valid",  # 1: an entry of the list (a survivor of the exclusion)
+    "standard_list",  # 1: among the entries the standard draws from (step 8's list)
+    "rssi",  # S-RSSI averaged over the sensing window, dB above the noise / 20
+    "sci_rsrp",  # RSRP of the strongest SCI reserving it, (dBm + 100) / 20; 0: none decoded
+    "reserved",  # 1: an SCI reserving it was decoded
+    "users",  # neighbours whose last decoded SCI reserves it / 4
+    "user_dx",  # the nearest of them, relative position from its CAM / scale_m (0, 0: none)
+    "user_dy",
+    "user_rsrp",  # its measured RSRP, scaled as above (0: none)
+    "subframe_users",  # neighbours whose last decoded SCI is in the candidate's subframe / 4 (half duplex)
+    "delay",  # subframes from the packet's generation to the candidate / the selection window's end
+    "subchannel",  # sub-channel / n_subchannels
+)
+FEATURES_CANDIDATE = len(CANDIDATE_NAMES)
+#: the own entries of version 5 after version 4's (:data:`~cv2x_marl.env.observation.OWN_V4_NAMES`)
+OWN_V5_EXTRA = ("decides", "list_size")
+#: observation version 5's own block: version 4's own entries, :data:`OWN_V5_EXTRA`, the candidate block
+OWN_V5 = OWN_V4 + len(OWN_V5_EXTRA) + N_CANDIDATES * FEATURES_CANDIDATE
+
+
 #: the blocks each observation version adds after the v0 block: version -> (values per neighbour, own entries);
 #: :func:`cv2x_marl.env.observation_models.register_observation` adds a version's row (``privileged`` adds
 #: one value per neighbour to versions 1 and 2)
 VERSION_BLOCKS: dict[int, tuple[int, int]] = {0: (0, 0), 1: (1, OWN_V1), 2: (1, OWN_V1), 3: (FEATURES_V3, OWN_V3),
-                                              4: (FEATURES_V4, OWN_V4)}  # fmt: skip
+                                              4: (FEATURES_V4, OWN_V4), 5: (FEATURES_V4, OWN_V5)}  # fmt: skip
 #: the built-in observation versions (:data:`VERSION_BLOCKS` holds every registered one)
-VERSIONS = (0, 1, 2, 3, 4)
+VERSIONS = (0, 1, 2, 3, 4, 5)
 #: the driving entries closing the observation with ``drive`` (module docstring)
 OWN_DRIVE_NAMES = ("speed", "heading_x", "heading_y", "lane", "lane_left", "lane_right", "time_left")
 OWN_DRIVE = len(OWN_DRIVE_NAMES)

@@ -47,7 +47,7 @@ REWARD_FORMS = ("utility", "improvement")
 #: the step towards the observed plan (``clip((plan - position) / max_step_m, -1, 1)``) before clipping
 ACTION_MODES = ("offset", "plan_residual")
 #: traffic mode: ``offset`` (radio position off the road position) or ``speed`` (SUMO speed / lane commands)
-TRAFFIC_ACTIONS = ("offset", "speed")
+TRAFFIC_ACTIONS = ("offset", "speed", "resource")
 #: the team part of ``team`` / ``mixed`` rewards: the mean eq. 12 utility or the network mean PRR
 TEAM_OBJECTIVES = ("utility", "prr")
 #: ``speed_command``: what ``action[0]`` means with ``traffic_action="speed"`` on the lane model
@@ -311,7 +311,9 @@ class EnvOptions:
         "`vehicles.speed_max_mps` (+1) and `action[1]` > 0.5 / < -0.5 asks for one lane left / right: with "
         "`vehicles.mobility=sumo` commands SUMO honours within its acceleration limits and car-following safety "
         "(`docs/mobility.md`), on the lane model (`model`) reached within `accel_mps2` / `decel_mps2`, a lane "
-        "that does not exist ignored (`cv2x_marl.sim.mobility.drive`)",
+        "that does not exist ignored (`cv2x_marl.sim.mobility.drive`); `resource` (`cv2x/Resource-v0`, observation 5): "
+        "the vehicles drive on their own and a vehicle that reselects its SPS resource picks it from its candidate "
+        "list (`Discrete(20)`, the info's `action_mask`)",
         choices=TRAFFIC_ACTIONS,
     )
     team_objective: str = _option(
@@ -484,6 +486,15 @@ class EnvOptions:
             refuse("replan_every", self.replan_every, "null unless observation is 2")
         if self.speed_command != "target" and (self.mode != "traffic" or self.traffic_action != "speed"):
             refuse("speed_command", self.speed_command, "target unless mode is traffic with traffic_action speed")
+        if (self.traffic_action == "resource") != (self.observation == 5) or (
+            self.traffic_action == "resource" and self.mode != "traffic"
+        ):
+            refuse(
+                "traffic_action",
+                self.traffic_action,
+                " | ".join(TRAFFIC_ACTIONS) + " (resource: mode traffic with observation 5, and observation 5 only "
+                f"with resource; here mode {self.mode}, observation {self.observation})",
+            )
         if self.drive_observation and (self.mode != "traffic" or self.traffic_action != "speed"):
             refuse(
                 "drive_observation", self.drive_observation, "false unless mode is traffic with traffic_action speed"
@@ -539,6 +550,13 @@ class EnvOptions:
                 "traffic_action",
                 self.traffic_action,
                 " | ".join(TRAFFIC_ACTIONS) + " (speed: mode traffic with vehicles.mobility=model or sumo)",
+            )
+        if self.traffic_action == "resource" and cfg.sps.reselection_timing != "period_end":
+            refuse(
+                "config.sps.reselection_timing",
+                cfg.sps.reselection_timing,
+                "period_end with traffic_action resource (the vehicles decide at the period's end, one step per "
+                "period; cv2x/Resource-v0 sets it)",
             )
         if self.speed_command != "target" and cfg.vehicles.mobility != "model":
             refuse("speed_command", self.speed_command, "target unless vehicles.mobility=model (the lane model)")

@@ -156,6 +156,15 @@ SPECS: tuple[EnvSpec, ...] = (
         False,
         "Traffic-v0 observing what the mover measured on the road (observation version 4)",
     ),
+    EnvSpec(
+        "cv2x/Resource-v0",
+        "resource-v0",
+        ("gymnasium", "pettingzoo"),
+        "arguments",
+        "_resource",
+        False,
+        "vehicles drive; each vehicle that reselects its SPS resource picks it from its sensed candidate list",
+    ),
 )
 #: the rows of :data:`SPECS` by id
 SPEC: Mapping[str, EnvSpec] = MappingProxyType({s.env_id: s for s in SPECS})
@@ -171,6 +180,8 @@ SINGLE_MOVER_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/SingleMover-")
 COOPERATIVE_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Cooperative-"))
 #: the traffic task and its variant observing what the mover measured (Gymnasium and PettingZoo)
 TRAFFIC_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Traffic-"))
+#: the resource task (Gymnasium and PettingZoo; every vehicle chooses its SPS resource)
+RESOURCE_IDS = tuple(i for i in ENV_IDS if i.startswith("cv2x/Resource-"))
 #: the id commands run when none is given (the benchmark's single-mover task)
 DEFAULT_ENV_ID = "cv2x/SingleMover-v3"
 

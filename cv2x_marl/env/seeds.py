@@ -45,7 +45,7 @@ def seed_list(task: str, kind: str, n: int, exclude: tuple[int, ...] = ()) -> tu
 
 #: every task's name, the pending ones included: their held-out lists exist before the task does, so
 #: the training list (:data:`TRAIN_SEEDS`) never changes when a pending task is built
-TASK_NAMES = ("singlemover", "cooperative", "traffic")
+TASK_NAMES = ("singlemover", "cooperative", "traffic", "resource")
 #: each task's held-out episode seeds (:data:`N_HELDOUT`)
 HELDOUT_SEEDS: Mapping[str, tuple[int, ...]] = MappingProxyType(
     {name: seed_list(name, "heldout", N_HELDOUT) for name in TASK_NAMES}

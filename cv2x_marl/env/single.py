@@ -39,7 +39,7 @@ class SingleMoverEnv(gym.Env):
         self.render_mode = render_mode
         self.observation_space = self.par.observation_space(AGENT)
         self.action_space = self.par.action_space(AGENT)
-        self._zero = np.zeros(2, dtype=np.float32)
+        self._zero = self.par.dynamics.null_action
         #: a Gymnasium ``TimeLimit`` around this env (steps; None: none): the observation's time left
         #: follows the shorter of it and ``max_cycles`` (:func:`follow_time_limit` sets it)
         self.time_limit: int | None = None

@@ -127,6 +127,7 @@ def open_start(env: MobilityEnv, seed: int) -> Start | None:
     if cached is None:
         env.sim = Simulator(env.config)
         env.sim.keep_period_geometry = env.observer.keep_period_geometry
+        env.sim.scheduler.record_selections = env.dynamics.record_selections
         env.snapshot = env.sim.reset(seed)
         env.dynamics.start(seed)
         return None

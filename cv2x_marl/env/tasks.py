@@ -5,7 +5,10 @@ refuses.
     singlemover   cv2x/SingleMover-v3   one mover (Gymnasium), plan-free observation, shadowing that follows it
     cooperative   cv2x/Cooperative-v0   every vehicle moves (PettingZoo), reward = the team objective
     traffic       cv2x/Traffic-v0       vehicles drive (Gymnasium), the mover commands its speed and lane
-                  (variant cv2x/Traffic-v1: the same task observing what the mover measured, :data:`VARIANTS`)
+                  (variant cv2x/Traffic-v1: the same task observing what the mover measured, :data:`VARIANTS`);
+                  the control task: no causal policy beats holding the speed there
+    resource      cv2x/Resource-v0      vehicles drive (PettingZoo), every vehicle that reselects picks its SPS
+                  resource from its sensed candidate list; gains against ``sps`` (the standard's choice)
     (variant of cooperative: cv2x/Cooperative-v1, the same task with the coordination channel: the vehicles
      decide in the order of their transmission subframes, each seeing the moves announced before it)
 
@@ -41,7 +44,12 @@ from cv2x_marl.env.seeds import (  # noqa: F401 - the protocol's lists, re-expor
 
 #: the env ids of the tasks, in one place
 TASK_ENV_IDS: Mapping[str, str] = MappingProxyType(
-    {"singlemover": "cv2x/SingleMover-v3", "cooperative": "cv2x/Cooperative-v0", "traffic": "cv2x/Traffic-v0"}
+    {
+        "singlemover": "cv2x/SingleMover-v3",
+        "cooperative": "cv2x/Cooperative-v0",
+        "traffic": "cv2x/Traffic-v0",
+        "resource": "cv2x/Resource-v0",
+    }
 )
 #: tasks announced but not built yet: name -> what is missing (refused by name, never run; none today)
 PENDING_TASKS: Mapping[str, str] = MappingProxyType({})
@@ -49,6 +57,8 @@ PENDING_TASKS: Mapping[str, str] = MappingProxyType({})
 BASE_OPTIONS: Mapping[str, Any] = MappingProxyType({"preset": "paper", "max_cycles": 100, "max_step_m": 5.0})
 #: the scripted methods every offset-action task runs (docs/benchmark.md)
 SCRIPTED_METHODS = ("static", "random", "gbmu", "sensing")
+#: the scripted methods of the resource task (its reference, ``sps``, first: the gains are against it)
+RESOURCE_METHODS = ("sps", "lowest-rssi", "random", "farthest")
 #: the ceiling's policy name (``--policy optimum``: the task's privileged search)
 CEILING = "optimum"
 
@@ -147,6 +157,16 @@ TASKS: Mapping[str, Task] = MappingProxyType(
                     for p in ("greedy", "oracle", "planner")
                 },
             },
+        ),
+        "resource": make_task(
+            "resource",
+            TASK_ENV_IDS["resource"],
+            RESOURCE_METHODS,
+            refused={
+                p: "its action picks an SPS resource from the vehicle's candidate list, not a move"
+                for p in ("static", "gbmu", "greedy", "oracle", "planner", "sensing", "best-response")
+            },
+            options={"max_cycles": 100},
         ),
     }
 )

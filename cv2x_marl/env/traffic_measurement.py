@@ -262,8 +262,8 @@ def fill_observations(env: TrafficEnvState, obs: NDArray[np.float32], rows: IntA
         rows: [A] the agents of ``obs``'s rows (None: every vehicle, in index order).
     """
     layout: ObservationLayout = env.layout
-    if layout.version != 4:
-        raise ValueError("fill_observations writes observation version 4")
+    if layout.version not in (4, 5):
+        raise ValueError("fill_observations writes observation version 4 (and version 5's blocks of version 4)")
     assert env.geometry is not None and env.own is not None
     rows = np.arange(env.n, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
     cfg, m, sci = env.config, env.traffic_measure.rsrp, env.traffic_measure.sci

@@ -45,6 +45,7 @@ from cv2x_marl.policies.base import Policy
 from cv2x_marl.policies.baselines import Baseline, is_baseline_file, load_baseline, make_baseline_policy
 from cv2x_marl.policies.optimum import uses_team_search
 from cv2x_marl.policies.registry import PPO_PREFIX, make_policy
+from cv2x_marl.policies.resource import is_resource_env, resource_reference
 from cv2x_marl.policies.traffic import reference_means
 from cv2x_marl.regression.model import PAPER_MODEL
 from cv2x_marl.runs import run_folder
@@ -384,7 +385,8 @@ def evaluate_rows(
         with np.errstate(divide="ignore", invalid="ignore"):
             ug = np.where(u0 != 0, (u1 - u0) / np.abs(u0), np.nan)
             pg = np.where(p0 != 0, (p1 - p0) / np.abs(p0), np.nan)
-        team = uses_team_search(env)  # the team is rewarded and every vehicle moves: gains of the team
+        # the team is rewarded and every vehicle moves, or every vehicle picks its resource: gains of the team
+        team = uses_team_search(env) or is_resource_env(env)
         if team:
             ug, pg = team_gain(rows, "utility_start", "utility_end"), team_gain(rows, "prr_start", "prr_end")
         for row, a, b in zip(rows, ug, pg, strict=True):
@@ -412,6 +414,10 @@ def evaluate_rows(
             summary["gains_of"] = "the team (mean over the vehicles)" if team else "each mover (eq. 17)"
             if means:
                 summary["gains_of"] = "each mover's episode means against static's on the same episode"
+            if means and is_resource_env(env):
+                summary["gains_of"] = (
+                    "the team's episode means against sps's (the standard's choice) on the same episode"
+                )
         if vs_optimum:
             _add_optimum_gains(summary, rows, u0, u1, team)
         if protocol:
@@ -466,12 +472,14 @@ def _episode_rows(
     """Every policy's episodes on ``env`` (:func:`evaluate_rows`): the per-mover rows and the env steps taken."""
     from tqdm import tqdm
 
-    zero = np.zeros(2, dtype=np.float32)
+    zero = env.dynamics.null_action
     rows: list[dict[str, Any]] = []
+    # cv2x/Resource-v0: each agent's episode means against sps's (the standard's choice) on the same episode
+    choice = is_resource_env(env)
     optimum_cache: dict[int, np.ndarray] = {}
     # episode metrics (cv2x/Traffic-v0): each episode's means, gains against static's on the same episode
     means = bool(getattr(env.options, "episode_metrics", False))
-    static_cache: dict[int, tuple[float, float]] = {}
+    static_cache: dict[int, tuple[Any, Any]] = {}  # floats (static's), or [N] arrays per agent (sps's)
     steps = 0
     for run, policy in enumerate(policies):
         ep_seeds = iter(seeds) if seeds is not None else episode_seeds(seed, episodes)
@@ -485,7 +493,10 @@ def _episode_rows(
                 optimum_cache[ep] = optimum_utilities(ref_env, ref)
             u_opt = optimum_cache.get(ep)
             if means and ep not in static_cache:
-                static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
+                if choice:
+                    static_cache[ep] = resource_reference(env, lambda e: make_policy("sps", e))
+                else:
+                    static_cache[ep] = reference_means(env, lambda e: make_policy("static", e))
             returns = dict.fromkeys(movers, 0.0)
             last = infos
             while env.agents:
@@ -497,7 +508,11 @@ def _episode_rows(
                     returns[a] += rew[a]
             for a in movers:
                 row: dict[str, Any] = {"run": run} if several else {}
-                row.update(_mover_row(last[a], ep, ep_seed, a, returns[a], static_cache.get(ep) if means else None))
+                base = static_cache.get(ep) if means else None
+                if choice and base is not None:  # per agent
+                    i = env.agent_index[a]
+                    base = (float(base[0][i]), float(base[1][i]))
+                row.update(_mover_row(last[a], ep, ep_seed, a, returns[a], base))
                 if u_opt is not None:
                     row["utility_optimum"] = float(u_opt[env.agent_index[a]])
                 rows.append(row)

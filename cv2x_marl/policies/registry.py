@@ -12,6 +12,10 @@
     sequential-best-response | sequential-sensing | sequential-team
                         :mod:`cv2x_marl.policies.sequential` (``decision_order="subframe"``, ``cv2x/Cooperative-v1``:
                         each vehicle re-plans at its subframe's turn, hearing the moves announced before it)
+    sps | lowest-rssi | farthest (and random, optimum there)
+                        :mod:`cv2x_marl.policies.resource`: where the action picks an SPS resource
+                        (``cv2x/Resource-v0``): the standard's choice, the lowest S-RSSI, the farthest sensed user;
+                        ``optimum`` the task's privileged ceiling
     ppo:PATH            a learned model file ``cv2x-marl train`` writes: a ``.zip``:
                         :class:`~cv2x_marl.policies.ppo.PpoPolicy` (stable-baselines3); a ``.pt``, by its format:
                         :class:`~cv2x_marl.policies.mappo.MappoPolicy` (a MAPPO actor) or
@@ -33,6 +37,7 @@ from cv2x_marl.policies.mappo import is_mappo_file
 from cv2x_marl.policies.optimum import BestResponsePolicy, OptimumPolicy
 from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
+from cv2x_marl.policies.resource import RESOURCE_POLICIES, make_resource_policy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
 from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy
 from cv2x_marl.policies.torch_ppo import load_pt_policy
@@ -45,7 +50,7 @@ if TYPE_CHECKING:
 #: the scripted policies, by name (what a baseline file's ``policy:`` may name)
 SCRIPTED = (
     "static", "random", "greedy", "gbmu", "oracle", "planner", "sensing", "optimum", "best-response",
-    "sequential-best-response", "sequential-sensing", "sequential-team",
+    "sequential-best-response", "sequential-sensing", "sequential-team", "sps", "lowest-rssi", "farthest",
 )  # fmt: skip
 #: the scripted policies that read a two-distance model
 MODELLED = ("gbmu", "greedy", "planner", "sensing")
@@ -78,6 +83,18 @@ def refuse_action_space(spec: str, env: MobilityEnv) -> None:
     """Refuse a policy that cannot act in ``env``'s action space, naming it, the env's setting and the
     policies that can: an offset policy is never reinterpreted as speed and lane commands (those with a
     road version, :data:`ROAD_POLICIES`, run it where the env drives the lane model)."""
+    choice = getattr(env, "mode", "snapshot") == "traffic" and getattr(env, "traffic_action", "offset") == "resource"
+    if choice != (spec in RESOURCE_POLICIES and spec not in ("random", "optimum")) and spec in SCRIPTED:
+        if choice and spec not in RESOURCE_POLICIES:
+            raise ValueError(
+                f"policy {spec!r} cannot act in this env: its action picks an SPS resource from a candidate list "
+                f"(cv2x/Resource-v0); allowed here: {', '.join(RESOURCE_POLICIES)}, {PPO_PREFIX}PATH"
+            )
+        if not choice:
+            raise ValueError(
+                f"policy {spec!r} picks an SPS resource: it needs cv2x/Resource-v0 (traffic_action resource); "
+                "allowed on other envs: the movers of docs/policies.md"
+            )
     speed = getattr(env, "mode", "snapshot") == "traffic" and getattr(env, "traffic_action", "offset") == "speed"
     if speed and drives(env):
         if spec in SCRIPTED and spec not in ROAD_POLICIES:
@@ -107,6 +124,8 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         delta: step size per env step (gbmu, greedy, oracle).
     """
     refuse_action_space(spec, env)
+    if getattr(env, "traffic_action", None) == "resource" and spec in RESOURCE_POLICIES:
+        return make_resource_policy(spec, env)
     if drives(env) and spec in ROAD_POLICIES and spec != "random":
         if spec == "static":
             return traffic.HoldSpeedPolicy(env)

@@ -126,7 +126,7 @@ class FastPpo:
         self.obs_size = int(np.prod(par.observation_space(par.possible_agents[0]).shape))
         self.net = ActorCritic(
             self.obs_size,
-            int(np.prod(par.action_space(par.possible_agents[0]).shape)),
+            int(np.prod(par.action_space(par.possible_agents[0]).shape or (1,))),
             p.net_arch,
             p.encoder,
             p.encoder_units,

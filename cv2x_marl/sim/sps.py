@@ -70,6 +70,11 @@ class Selection:
     choice: IntArray  # [V] index into the candidate list
     threshold_dbm: FloatArray  # [V] final RSRP threshold after the 3 dB loop
     n_kept: IntArray  # [V] candidates surviving exclusion
+    #: [V, M] candidate indices in the rule's ranking: the survivors by ascending S-RSSI (``uniform``: in index
+    #: order), then the excluded ones
+    order: IntArray | None = None
+    #: [V] how many of the first entries of ``order`` the rule draws from (step 8's list: ``choice`` is one of them)
+    n_pick: IntArray | None = None
 
 
 def select(
@@ -114,7 +119,7 @@ def select(
     n_pick = np.minimum(k, n_kept)
     pick = np.floor(rng.random(v) * n_pick).astype(np.int64)
     choice = order[np.arange(v), pick]
-    return Selection(choice, threshold, n_kept)
+    return Selection(choice, threshold, n_kept, order, n_pick)
 
 
 def model_alpha(cbr: NDArray[np.floating]) -> FloatArray:
@@ -141,6 +146,32 @@ def model_step2_alone(rsrp_dbm: FloatArray, threshold_dbm: float, u: FloatArray)
     n_free = np.sum(rsrp_dbm <= threshold_dbm, axis=1)
     cbr = 1.0 - n_free / rsrp_dbm.shape[1]
     return np.asarray((u < model_alpha(cbr)) & (n_free > 0))
+
+
+@dataclass(frozen=True)
+class SelectionRecord:
+    """One batch of sensing-based selections as the scheduler ran them (:attr:`SpsScheduler.record_selections`):
+    what each selecting vehicle sensed and the standard's list it drew from (TS 36.213 14.1.1.6 steps 5-8).
+
+    Attributes:
+        vehicles: [V] the selecting vehicles.
+        candidates: [V, M] their candidate resources (``slot * n_sub + subchannel``, :func:`candidate_resources`).
+        rsrp_dbm: [V, M] RSRP of the SCI reserving each candidate (``-inf``: none decoded, ``+inf``: not monitored).
+        rssi_mw: [V, M] the sensing window's average S-RSSI of each candidate (mW; noise where never measured).
+        order: [V, M] candidate indices ranked by the rule (:attr:`Selection.order`): the survivors first.
+        n_kept: [V] the survivors of the exclusion (steps 5-7): the first ``n_kept`` entries of ``order``.
+        n_list: [V] the standard's list: the first ``n_list`` entries of ``order`` (step 8).
+        chosen: [V] the resource the standard's draw chose (the scheduler's ``sps`` stream).
+    """
+
+    vehicles: IntArray
+    candidates: IntArray
+    rsrp_dbm: FloatArray
+    rssi_mw: FloatArray
+    order: IntArray
+    n_kept: IntArray
+    n_list: IntArray
+    chosen: IntArray
 
 
 def nan_mean_first_axis(x: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -197,6 +228,10 @@ class SpsScheduler:
         #: sps.reselection_timing=per_ue: counters and reselections at each UE's packet arrival
         self.per_ue = config.sps.reselection_timing == "per_ue"
         self.standard = config.sps.reservation_signalling == "standard"
+        #: keep each selection's sensing and list in :attr:`selections` (the env's ``cv2x/Resource-v0`` reads them)
+        self.record_selections = False
+        #: with :attr:`record_selections`: the selections since the last period end began (:class:`SelectionRecord`)
+        self.selections: list[SelectionRecord] = []
 
     def reset(
         self, rng: np.random.Generator, traffic_rng: np.random.Generator, present: NDArray[np.bool_] | None
@@ -237,6 +272,7 @@ class SpsScheduler:
         self.n_reselections = 0
         self.n_expiries = 0
         self.n_keeps = 0
+        self.selections = []
 
     def _new_period_buffers(self) -> None:
         self.period_rssi_mw = np.zeros(self.n * self.n_res)
@@ -309,8 +345,15 @@ class SpsScheduler:
         if exclude_own:
             rsrp = np.where(cand // self.n_sub == self.slot[vehicles][:, None], np.inf, rsrp)
         rssi = np.where(np.isnan(rssi), self.noise_mw, rssi)  # never measured
-        choice = select(rsrp, rssi, self.cfg, self.rng).choice
-        return np.asarray(cand[np.arange(vehicles.size), choice])
+        sel = select(rsrp, rssi, self.cfg, self.rng)
+        chosen = np.asarray(cand[np.arange(vehicles.size), sel.choice])
+        if self.record_selections:
+            assert sel.order is not None and sel.n_pick is not None
+            record = SelectionRecord(
+                vehicles.copy(), cand, rsrp, np.asarray(rssi, np.float64), sel.order, sel.n_kept, sel.n_pick, chosen
+            )
+            self.selections.append(record)
+        return chosen
 
     def _sensing_at(
         self, vehicles: IntArray, cand: IntArray, at_slot: int, subframe: int
@@ -438,6 +481,7 @@ class SpsScheduler:
         (``sps.reselection_timing=period_end``; ``per_ue``: they ran at the arrivals), let the joining
         vehicles of an open population (``present`` [N]; None: closed) select, and start the next
         period's sensing sums."""
+        self.selections = []
         k = (subframe // self.rri - 1) % self.sensing_periods
         ring = self.period_rssi_mw.reshape(self.n, self.n_res).astype(np.float32)
         ring += np.float32(self.noise_mw)
