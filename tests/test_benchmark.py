@@ -219,7 +219,8 @@ def test_benchmark_table_equals_a_recomputation_and_evaluate(tmp_path: Path, mon
         raise AssertionError("one worker runs without Ray")
 
     monkeypatch.setattr(cv2x_marl.parallel, "ray_session", no_ray)
-    table = {n: t for n, t in stand_in_tasks().items() if n != "traffic"}  # traffic: tests/env/test_traffic.py
+    # traffic: tests/env/test_traffic.py; resource (other methods, gains against sps): tests/env/test_resource.py
+    table = {n: t for n, t in stand_in_tasks().items() if n not in ("traffic", "resource")}
     out = tmp_path / "bench"
     summary = benchmark.run_benchmark(out, methods=["static", "gbmu"], episodes=2, progress=False, task_table=table)
     assert {p.name for p in out.iterdir()} >= {"benchmark.csv", "summary.json", "table.md", "benchmark.png"}
@@ -437,7 +438,8 @@ def test_offset_policies_are_refused_where_actions_are_speed_commands() -> None:
         ):
             registry.make_policy(name, speed_env)  # type: ignore[arg-type]
     assert registry.make_policy("static", speed_env).name == "static"  # type: ignore[arg-type]
-    assert set(registry.OFFSET_POLICIES) | {"static", "random"} == set(registry.SCRIPTED)
+    resource = {"sps", "lowest-rssi", "farthest"}  # cv2x/Resource-v0's scripts (its action picks a resource)
+    assert set(registry.OFFSET_POLICIES) | {"static", "random"} | resource == set(registry.SCRIPTED)
 
 
 def test_rows_from_an_earlier_run_are_taken_not_run_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

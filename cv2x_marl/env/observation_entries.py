@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from cv2x_marl.env.observation import FEATURES, OWN, OWN_DRIVE, ObservationLayout
+from cv2x_marl.env.observation import CANDIDATE_NAMES, FEATURES, N_CANDIDATES, OWN, OWN_DRIVE, ObservationLayout
 
 #: a length in units of the ``scale_m`` option
 SCALE = "scale_m"
@@ -89,6 +89,31 @@ V4_OWN = (
     ("utility", "own utility now (eq. 12 per target receiver)", "-"),
     ("utility_change_x10", "10 x (utility now - utility a step ago)", "-"),
 )
+#: version 5: the own entries after version 4's
+V5_OWN = (
+    ("decides", "1 if i reselected at the period's end: its action picks its resource this step", "-"),
+    ("list_size", "entries of its candidate list / 20", "-"),
+)
+#: version 5: per candidate c (the c-th entry of i's list, in the standard's ranking: ascending S-RSSI), what i sensed
+V5_CANDIDATE = (
+    ("valid", "1 if c is an entry of the list (a survivor of the exclusion, TS 36.213 14.1.1.6 steps 5-7)", "-"),
+    ("standard_list", "1 if c is among the entries the standard draws from (step 8)", "-"),
+    ("rssi", "S-RSSI of c averaged over the sensing window, dB above the noise / 20", "-"),
+    ("sci_rsrp", "RSRP of the strongest SCI reserving c, (dBm + 100) / 20; 0 when none was decoded", "-"),
+    ("reserved", "1 if an SCI reserving c was decoded", "-"),
+    ("users", "neighbours whose last decoded SCI reserves c / 4", "vehicles / 4"),
+    ("user_dx", "the nearest of them relative to i (its CAM position), x (0 when none)", SCALE),
+    ("user_dy", "that vehicle relative to i, y", SCALE),
+    ("user_rsrp", "its RSRP measured at i, (dBm + 100) / 20 (0 when none)", "-"),
+    (
+        "subframe_users",
+        "neighbours whose last decoded SCI is in c's subframe / 4 (they cannot hear i there)",
+        "vehicles / 4",
+    ),
+    ("delay", "subframes from i's packet generation to c / the selection window's end", "-"),
+    ("subchannel", "c's sub-channel / sub-channels", "-"),
+)
+assert tuple(name for name, _, _ in V5_CANDIDATE) == CANDIDATE_NAMES
 #: the driving entries closing the vector with ``drive_observation``
 DRIVE = (
     ("speed", "own speed / the speed limit", "-"),
@@ -106,6 +131,7 @@ VERSION_ENTRIES = {
     2: (V1_NEIGHBOUR, V1_OWN),
     3: (V3_NEIGHBOUR, V3_OWN),
     4: (V4_NEIGHBOUR, V4_OWN),
+    5: (V4_NEIGHBOUR, V4_OWN + V5_OWN),
 }
 
 
@@ -144,6 +170,11 @@ def entry_table(layout: ObservationLayout) -> list[Entry]:
     if layout.privileged and layout.version in (1, 2):
         at = block(at, V1_PRIVILEGED, True)
     at = block(at, own, False)
+    if layout.version == 5:  # the candidate block: one row per entry, over c = 0 .. N_CANDIDATES - 1
+        width = len(V5_CANDIDATE)
+        for f, (name, meaning, unit) in enumerate(V5_CANDIDATE):
+            rows.append(Entry(at + f, at + (N_CANDIDATES - 1) * width + f, width, f"{name}[c]", meaning, unit))
+        at += N_CANDIDATES * width
     if layout.drive:
         at = block(at, DRIVE, False)
     assert not layout.drive or len(DRIVE) == OWN_DRIVE

@@ -15,6 +15,7 @@ from cv2x_marl.docstrings import summary
 from cv2x_marl.env.defaults import VERSION_DEFAULTS
 from cv2x_marl.env.dynamics import DYNAMICS
 from cv2x_marl.env.mobility_env import MobilityEnv
+from cv2x_marl.env.observation import N_CANDIDATES
 from cv2x_marl.env.observation_entries import entry_table
 from cv2x_marl.env.options import EnvOptions, option_names
 from cv2x_marl.env.registry import SPECS, EnvSpec, make_parallel_env
@@ -22,7 +23,8 @@ from cv2x_marl.env.tasks import TASKS, VARIANTS
 
 #: the ids a new study should start from (the benchmark's tasks and variant); the others are kept for old models
 CURRENT_IDS = (
-    "cv2x/SingleMover-v3", "cv2x/Cooperative-v0", "cv2x/Cooperative-v1", "cv2x/Traffic-v0", "cv2x/Traffic-v1",
+    "cv2x/SingleMover-v3", "cv2x/Cooperative-v0", "cv2x/Cooperative-v1", "cv2x/Resource-v0", "cv2x/Traffic-v0",
+    "cv2x/Traffic-v1",
 )  # fmt: skip
 #: what a variant of a task changes (:data:`~cv2x_marl.env.tasks.VARIANTS`)
 VARIANT_CHANGES = {
@@ -55,6 +57,11 @@ def _how_to_make(spec: EnvSpec) -> list[str]:
 
 
 def _movers(spec: EnvSpec) -> str:
+    if VERSION_DEFAULTS[spec.defaults].get("traffic_action") == "resource":
+        return (
+            "every vehicle is an agent and picks its SPS resource when it reselects (`movers` limits who chooses; "
+            "the others keep the standard's draw); the Gymnasium agent is vehicle 0"
+        )
     return {
         "arguments": "every vehicle is an agent and moves (`movers` limits who moves)",
         "vehicle0": "vehicle 0 moves; the other vehicles stay where the scenario puts them",
@@ -65,6 +72,24 @@ def _movers(spec: EnvSpec) -> str:
 
 def _action_section(env: MobilityEnv) -> list[str]:
     kind = env.dynamics.kind
+    if kind == "resource":
+        return [
+            f"`Discrete({N_CANDIDATES})` per agent; action kind `resource` (`cv2x_marl.env.resource`): an entry of the "
+            "vehicle's candidate list.",
+            "",
+            "One step is one 100-ms SPS period of the simulator: the vehicles drive on while it runs. At the end of a "
+            "period, a vehicle whose reselection counter expired (and that does not keep its resource, TS 36.321 "
+            "5.14.1.1) reselects: the standard's sensing-based selection runs (TS 36.213 14.1.1.6: the candidates of "
+            "its selection window, those reserved by a decoded SCI above the RSRP threshold excluded, the threshold "
+            "raised by 3 dB until 20 % survive) and its survivors, ranked by S-RSSI over the sensing window, are the "
+            f"vehicle's list (at most {N_CANDIDATES}). In the next step the vehicle *decides*: its action picks the "
+            "entry it transmits on from the next period until its next reselection. Its info's `action_mask` (int8, "
+            f"[{N_CANDIDATES}]) marks the valid entries (all 0 without a decision) and `decides` is 1.0; "
+            "`env.action_masks()` gives every vehicle's mask as one array. The action of a vehicle without a "
+            "decision, and an entry past the list, keep the standard's own draw (uniform among the first "
+            "`ceil(0.2 M)` entries, step 8). An action that is not an integer in the space is refused with an error "
+            "naming the agent.",
+        ]
     lines = [f"`Box(-1, 1, (2,), float32)` per agent; action kind `{kind}`: {summary(DYNAMICS[kind].__doc__)}"]
     if env.mode == "snapshot":
         lines += [
@@ -104,6 +129,8 @@ def _observation_section(env: MobilityEnv) -> list[str]:
     for e in entry_table(layout):
         if e.first == e.last:
             index = str(e.first)
+        elif e.name.endswith("[c]"):
+            index = f"{e.first} + {e.step}c (c = 0 .. {N_CANDIDATES - 1}: {e.first} .. {e.last})"
         else:
             index = f"{e.first} + {e.step}k (k = 0 .. {layout.n_neighbours - 1}: {e.first} .. {e.last})"
         lines.append(f"| {index} | `{e.name}` | {e.meaning} | {e.unit} |")
@@ -119,6 +146,16 @@ def _reward_section(env: MobilityEnv) -> list[str]:
         "difference": "the team objective minus its value with the agent back at its start",
     }[o.reward]
     per = ", per target receiver" if o.normalise_reward else ""
+    if o.traffic_action == "resource":
+        return [
+            f"The reward is {kind}{per}, of the vehicle's transmission in the period just run (`reward={o.reward}`, "
+            f"`normalise_reward={o.normalise_reward}`, `p_min={o.p_min:g}`): P is each link's success probability "
+            "in that period from the simulator's link model (the SINR with the period's fading and co-channel "
+            "interference). Its target receivers are every vehicle within `link.max_range_m`; a receiver transmitting "
+            "in the same subframe cannot hear it (half duplex), so that link counts as lost: the chosen resource "
+            "decides it. The infos carry `utility`, `prr` and `jain` now and at the start, the episode's means "
+            "(`utility_mean`, `prr_mean`, `jain_mean`), `decides` and `action_mask`.",
+        ]
     form = (
         "The reward is the change over the step (an episode's rewards sum to final minus start) of"
         if o.reward_form == "improvement"
@@ -143,6 +180,8 @@ def _start_section(env: MobilityEnv) -> list[str]:
         )
     else:
         what = "the simulator after its warm-up; the vehicles drive on (lane model) while the episode runs"
+    if env.options.overrides:
+        what += " (scenario overrides: " + ", ".join(f"`{o}`" for o in env.options.overrides) + ")"
     return [
         f"`reset(seed=s)`: {what}. Scenario: preset `{env.options.preset}`, {cfg.n_vehicles} vehicles. The seed "
         "draws the scenario (placement and SPS state, the density where the preset draws it), so an episode is a "
@@ -197,7 +236,10 @@ def _policies_section(spec: EnvSpec) -> list[str]:
             "its action space allows (`static`, `random`, `gbmu`, `greedy`, `oracle`, `planner`, `sensing`, "
             "`optimum`).",
         ]
-    refused = "; ".join(f"`{p}`: {why}" for p, why in task.refused.items()) or "none"
+    grouped: dict[str, list[str]] = {}
+    for p, why in task.refused.items():
+        grouped.setdefault(why, []).append(f"`{p}`")
+    refused = "; ".join(f"{', '.join(ps)}: {why}" for why, ps in grouped.items()) or "none"
     channel = []
     if VERSION_DEFAULTS[spec.defaults].get("decision_order") == "subframe":
         channel = [
@@ -208,6 +250,31 @@ def _policies_section(spec: EnvSpec) -> list[str]:
             "estimate, every sensing window), `sequential-team` (every period, the best reachable position for the "
             "team objective; privileged). A learner acts at its turn through the AEC API, or batched with "
             "`cv2x_marl.env.turns.decide_in_turns`.",
+        ]
+    if VERSION_DEFAULTS[spec.defaults].get("traffic_action") == "resource":
+        return [
+            head + f" Scripted methods (`cv2x_marl.policies.resource`): {', '.join(f'`{m}`' for m in task.methods)}; "
+            f"the ceiling: `{task.ceiling}` (privileged: a centralised choice at each reselection that knows every "
+            "vehicle's position and reservation now, not the future draws). Gains are the team's episode means "
+            "against `sps` (the standard's own choice) on the same episode.",
+            f"Refused: {refused}.",
+            "",
+            "```python",
+            "from cv2x_marl.env import make_parallel_env",
+            "from cv2x_marl.policies.registry import make_policy",
+            "",
+            f'env = make_parallel_env("{spec.env_id}")',
+            'policy = make_policy("farthest", env)  # a sensing-aware script on the public API',
+            "obs, infos = env.reset(seed=0)",
+            "policy.reset(seed=0)",
+            "while env.agents:",
+            "    masks = env.action_masks()  # [N, 20]: the valid entries of each deciding vehicle's list",
+            "    obs, rewards, terms, truncs, infos = env.step(policy.act(obs))",
+            "```",
+            "",
+            f"Scored on the task's held-out episodes: `cv2x-marl evaluate --env {spec.env_id} --policy farthest "
+            f"--seeds heldout`; every method at once: `cv2x-marl benchmark --tasks {task.name} --out runs/bench` "
+            "([the benchmark](../benchmark.md)).",
         ]
     return [
         head + f" Scripted methods: {', '.join(f'`{m}`' for m in task.methods)}; the ceiling: `{task.ceiling}`.",

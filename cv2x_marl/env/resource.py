@@ -10,7 +10,8 @@ The parts of the task (the env is :class:`~cv2x_marl.env.mobility_env.MobilityEn
   action picks one entry of its candidate list, the survivors of the exclusion (steps 5-7) ranked by the
   standard's metric (ascending S-RSSI over the sensing window, step 8), at most :data:`N_CANDIDATES` of them. It
   transmits on the chosen resource from the next period until its next reselection. A vehicle without a
-  decision this step (or not among ``movers``) ignores its action and keeps the standard's own draw.
+  decision this step (or not among ``movers``), and an entry past the list (``action_mask`` 0), keep the
+  standard's own draw (the scheduler's, from step 8's list).
 * observation version 5 (:class:`ResourceObservation`): observation version 4's blocks (the v0 block, per
   neighbour what the vehicle measured and decoded of its SCIs, the own SPS state), then whether it decides,
   and per candidate what it sensed on it (:data:`CANDIDATE_NAMES`): nothing a vehicle could not have sensed.
@@ -113,19 +114,19 @@ class PendingChoices:
 
 def decode_choices(
     actions: Any, live: set[str], agents: list[str], possible_agents: list[str], agent_index: dict[str, int],
-    pending: PendingChoices, movers: NDArray[np.bool_],
+    k: int,
 ) -> IntArray:  # fmt: skip
-    """The choices a ``step`` received, checked, as [N] list entries by vehicle index (0 where none).
+    """The choices a ``step`` received, checked, as [N] list entries by vehicle index (0 where none), each an entry
+    of ``Discrete(k)``.
 
-    Every live agent gives an action (as PettingZoo asks); it must be an integer in ``[0, K)`` (the action space);
-    a deciding mover's must also be a valid entry of its list (``action_mask``). Nothing is applied when one is
-    refused.
+    Every live agent gives an action (as PettingZoo asks); it must be an integer in ``[0, K)`` (the action space).
+    An entry past a deciding vehicle's list (``action_mask`` 0 there) keeps the standard's own draw, as a vehicle
+    without a decision does (:meth:`ResourceChoice.move`); nothing is applied when an action is refused.
 
     Raises:
         TypeError: ``actions`` is not a dict.
         KeyError: an unknown or finished agent, or a live agent without an action (named).
-        ValueError: an action that is not an integer of the space, or an entry past a decider's list (named, with
-            the allowed values).
+        ValueError: an action that is not an integer of the space (named, with the allowed values).
     """
     if not isinstance(actions, dict):
         raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
@@ -136,7 +137,6 @@ def decode_choices(
             raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {shown}")
         missing = [a for a in agents if a not in actions]
         raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
-    k = pending.resources.shape[1]
     out = np.zeros(len(possible_agents), dtype=np.int64)
     for agent, value in actions.items():
         arr = np.asarray(value)
@@ -145,13 +145,7 @@ def decode_choices(
         a = int(arr.flat[0])
         if not 0 <= a < k:
             raise ValueError(f"action of {agent} must be an integer in [0, {k}) (a list entry), got {a}")
-        i = agent_index[agent]
-        if pending.decides[i] and movers[i] and a >= pending.n_valid[i]:
-            raise ValueError(
-                f"action of {agent} is entry {a} of its candidate list, which has {pending.n_valid[i]} entries; "
-                f"allowed: 0 .. {pending.n_valid[i] - 1} (its info's action_mask)"
-            )
-        out[i] = a
+        out[agent_index[agent]] = a
     return out
 
 
@@ -173,17 +167,16 @@ class ResourceChoice(Traffic):
 
     def decode(self, actions: Any) -> Any:
         env = self.env
-        return decode_choices(
-            actions, env._live, env.agents, env.possible_agents, env.agent_index, env.pending, env.mover_mask
-        )
+        return decode_choices(actions, env._live, env.agents, env.possible_agents, env.agent_index, N_CANDIDATES)
 
     def move(self, act: Any, settle: bool) -> Moved:
         env = self.env
         sched = env.sim.scheduler
         pending: PendingChoices = env.pending
-        rows = np.flatnonzero(pending.decides & env.mover_mask)
+        act = np.asarray(act)
+        rows = np.flatnonzero(pending.decides & env.mover_mask & (act < pending.n_valid))  # past the list: the draw
         if rows.size:
-            sched.resource[rows] = pending.resources[rows, np.asarray(act)[rows]]
+            sched.resource[rows] = pending.resources[rows, act[rows]]
         self.run_period()
         return np.zeros((env.n, 2)), np.zeros(env.n, dtype=bool)
 

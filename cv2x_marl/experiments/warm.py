@@ -45,7 +45,7 @@ def warm(verbose: bool = True) -> float:
             env = make_parallel_env(env_id, max_cycles=3)
             env.reset(seed=0)
             while env.agents:
-                env.step({a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents})
+                env.step(dict.fromkeys(env.agents, env.dynamics.null_action))
             env.close()
             spec = gymnasium.spec(env_id) if env_id in gymnasium.registry else None
             if spec is not None and spec.vector_entry_point is not None:

@@ -30,7 +30,7 @@ GYMNASIUM_IDS = [i for i in ENV_IDS if i in gymnasium.registry]
 def test_every_id_is_registered_in_a_framework_and_aec_with_parallel() -> None:
     assert set(PETTINGZOO_IDS) | set(GYMNASIUM_IDS) == set(ENV_IDS)
     assert all(i in pettingzoo.aec_registry for i in PETTINGZOO_IDS)
-    assert set(GYMNASIUM_IDS) == {i for i in ENV_IDS if "SingleMover" in i or "Traffic" in i}
+    assert set(GYMNASIUM_IDS) == {i for i in ENV_IDS if "SingleMover" in i or "Traffic" in i or "Resource" in i}
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
@@ -86,8 +86,12 @@ def _episode(env_id: str, seed: int) -> np.ndarray:
     rng = np.random.default_rng(7)
     obs, _ = env.reset(seed=seed)
     out = [np.stack([obs[a] for a in env.possible_agents]).ravel()]
+    space = env.action_space(env.possible_agents[0])
     while env.agents:
-        act = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
+        if isinstance(space, gymnasium.spaces.Discrete):  # cv2x/Resource-v0: list entries (past a list: the draw)
+            act = {a: np.int64(rng.integers(space.n)) for a in env.agents}
+        else:
+            act = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
         obs, rew, *_ = env.step(act)
         out.append(np.stack([obs[a] for a in env.possible_agents]).ravel())
         out.append(np.array([rew[a] for a in env.possible_agents]))

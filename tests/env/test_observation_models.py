@@ -54,7 +54,7 @@ def test_a_registered_version_is_an_option_with_its_layout_and_its_entries(toy: 
 
 
 def test_unregistered_versions_are_refused_naming_the_registered_ones(toy: type[ObservationModel]) -> None:
-    with pytest.raises(ValueError, match=r"observation=91; allowed: 0 \| 1 \| 2 \| 3 \| 4 \| 90"):
+    with pytest.raises(ValueError, match=r"observation=91; allowed: 0 \| 1 \| 2 \| 3 \| 4 \| 5 \| 90"):
         MobilityEnv(observation=91, **FAST)
 
 

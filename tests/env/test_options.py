@@ -36,7 +36,7 @@ def test_version_defaults() -> None:
     assert EnvOptions.from_mapping({"reward_form": "utility"}, "v2").reward_form == "utility"
     assert EnvOptions.from_mapping({}, "v2").observation == 2
     assert set(VERSION_DEFAULTS) == {
-        "v0", "v1", "v2", "v3", "cooperative-v0", "cooperative-v1", "traffic-v0", "traffic-v1",
+        "v0", "v1", "v2", "v3", "cooperative-v0", "cooperative-v1", "traffic-v0", "traffic-v1", "resource-v0",
     }  # fmt: skip
     v3 = EnvOptions.from_mapping({}, "v3")
     assert (v3.observation, v3.shadow_field, v3.reward_form, v3.normalise_reward) == (3, True, "improvement", True)

@@ -97,7 +97,45 @@ CASES: dict[str, tuple[str, str, dict[str, Any], int, int]] = {
     "cooperative-v1": ("parallel", "cv2x/Cooperative-v1", {"max_cycles": 6}, 73, 7),
     "cooperative-v1-aec": ("aec", "env_cooperative_v1", {"max_cycles": 3}, 74, 3),
     "cooperative-v1-mpe": ("mpe", "cv2x/Cooperative-v1", {"max_cycles": 5}, 75, 5),
+    # cv2x/Resource-v0: every vehicle picks its SPS resource (list entries drawn at random; past a list: the draw)
+    "resource-v0": ("resource", "cv2x/Resource-v0", {"max_cycles": 6}, 76, 8),
+    "resource-v0-team-window": ("resource", "cv2x/Resource-v0", {"reward": "team", "sensing_window": 3}, 77, 6),
 }
+
+
+def _play_resource(env_id: str, kw: dict[str, Any], seed: int, steps: int) -> dict[str, np.ndarray]:
+    """A PettingZoo episode of a resource-choice id: every agent draws an entry of ``Discrete(20)``; the infos'
+    ``action_mask`` recorded as an array."""
+    env = make_parallel_env(env_id, **kw)
+    agents = list(env.possible_agents)
+    rng = np.random.default_rng(seed)
+    rec = _Recorder()
+    n = len(agents)
+
+    def add(event: int, obs: dict[str, Any], rew: Any, infos: dict[str, Any]) -> None:
+        masks = np.stack([infos[a]["action_mask"] for a in agents])
+        numeric = {a: {k: v for k, v in infos[a].items() if k != "action_mask"} for a in agents}
+        rec.add(
+            event=event,
+            obs=np.stack([obs[a] for a in agents]),
+            reward=np.array([rew.get(a, 0.0) for a in agents], dtype=np.float64),
+            mask=masks,
+            resource=env.sim.resource.copy(),
+            **_agent_infos(numeric, agents),
+        )
+
+    obs, infos = env.reset(seed=seed)
+    add(0, obs, {}, infos)
+    for _ in range(steps):
+        if not env.agents:
+            obs, infos = env.reset()
+            add(0, obs, {}, infos)
+            continue
+        act = rng.integers(0, 20, size=n)
+        obs, rew, _, _, infos = env.step({a: np.int64(act[i]) for i, a in enumerate(agents)})
+        add(1, obs, rew, infos)
+    env.close()
+    return rec.arrays()
 
 
 def _play_mpe(env_id: str, kw: dict[str, Any], seed: int, steps: int) -> dict[str, np.ndarray]:
@@ -135,7 +173,10 @@ def _play_mpe(env_id: str, kw: dict[str, Any], seed: int, steps: int) -> dict[st
 def play_case(name: str) -> dict[str, np.ndarray]:
     """Play one case of :data:`CASES`; its events' arrays, keyed by field."""
     api, target, kw, seed, steps = CASES[name]
-    play = {"parallel": _play_parallel, "aec": _play_aec, "gym": _play_gym, "vec": _play_vec, "mpe": _play_mpe}[api]
+    play = {
+        "parallel": _play_parallel, "aec": _play_aec, "gym": _play_gym, "vec": _play_vec, "mpe": _play_mpe,
+        "resource": _play_resource,
+    }[api]  # fmt: skip
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return play(target, dict(kw), seed, steps)
