@@ -379,8 +379,8 @@ def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overw
     p.add_argument("--out", type=Path, required=True, help="run folder: benchmark.csv, summary.json, table.md, .png")
     p.add_argument(
         "--tasks",
-        help="tasks, comma-separated (default: singlemover, cooperative, resource; the control task traffic on request; "
-        "docs/benchmark.md)",
+        help="tasks, comma-separated (default: singlemover, cooperative, resource; the control task traffic on "
+        "request; docs/benchmark.md)",
     )
     p.add_argument("--methods", help="scripted methods, comma-separated (default: each task's; the ceiling always)")
     p.add_argument(
