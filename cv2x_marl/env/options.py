@@ -556,7 +556,7 @@ class EnvOptions:
                 "config.sps.reselection_timing",
                 cfg.sps.reselection_timing,
                 "period_end with traffic_action resource (the vehicles decide at the period's end, one step per "
-                "period; cv2x/Resource-v0 sets it)",
+                "period: add sps.reselection_timing=period_end to overrides)",
             )
         if self.speed_command != "target" and cfg.vehicles.mobility != "model":
             refuse("speed_command", self.speed_command, "target unless vehicles.mobility=model (the lane model)")
