@@ -258,3 +258,33 @@ def test_seeded_episodes_repeat():
         while env.agents:
             obs, *_ = env.step(pol.act(obs))
     assert np.array_equal(a.u_sum, b.u_sum) and np.array_equal(a.sim.resource, b.sim.resource)
+
+
+def test_overrides_given_apply_after_the_ids_own(tmp_path, monkeypatch):
+    """``cv2x/Resource-v0``'s SPS procedures are scenario overrides of the id: those a caller gives (the API, or
+    ``evaluate --set``) come after them, and ``evaluate`` without ``--preset`` / ``--set`` keeps them."""
+    env = make_parallel_env(ENV_ID, overrides=["sim.warmup_subframes=500"])
+    assert env.options.overrides == (*RESOURCE_OVERRIDES, "sim.warmup_subframes=500")
+    assert env.config.sps.selection == "3gpp" and env.config.sim.warmup_subframes == 500
+    assert make_parallel_env("cv2x/Traffic-v0", overrides=["sim.warmup_subframes=500"]).options.overrides == (
+        "sim.warmup_subframes=500",
+    )
+    import json
+
+    from cv2x_marl.cli import main
+
+    seen = {}
+    real = make_parallel_env
+
+    def spy(env_id, **kw):
+        env = real(env_id, **kw)
+        seen[env_id] = env.options.overrides
+        return env
+
+    import cv2x_marl.experiments.evaluate as ev
+
+    monkeypatch.setattr(ev, "make_parallel_env", spy)
+    rc = main(["evaluate", "--env", ENV_ID, "--policy", "sps", "--seeds", "5", "--max-cycles", "3", "--quiet", "--out",
+               str(tmp_path / "e")])  # fmt: skip
+    assert rc == 0 and seen[ENV_ID] == RESOURCE_OVERRIDES
+    assert json.loads((tmp_path / "e" / "summary.json").read_text())["mean_utility_gain"] == 0.0  # sps against itself
