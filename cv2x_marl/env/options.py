@@ -154,7 +154,8 @@ class EnvOptions:
     overrides: Sequence[str] = _option(
         "start",
         (),
-        "`section.key=value` strings (see `docs/config.md`); a single string is one assignment",
+        "`section.key=value` strings (see `docs/config.md`); a single string is one assignment; an id with overrides "
+        "of its own (`cv2x/Resource-v0`: its SPS procedures) applies those given after its own",
         shown="()",
         allowed="a section.key=value string or a list of them",
     )
