@@ -290,3 +290,32 @@ def test_overrides_given_apply_after_the_ids_own(tmp_path, monkeypatch):
                str(tmp_path / "e")])  # fmt: skip
     assert rc == 0 and seen[ENV_ID] == RESOURCE_OVERRIDES
     assert json.loads((tmp_path / "e" / "summary.json").read_text())["mean_utility_gain"] == 0.0  # sps against itself
+
+
+def test_gymnasium_view_and_its_action_masks():
+    """``gymnasium.make("cv2x/Resource-v0")`` is vehicle 0's view: the others keep the standard's draw; its
+    ``action_masks()`` (sb3-contrib's convention) is vehicle 0's list when it decides, every entry otherwise."""
+    import gymnasium
+
+    import cv2x_marl  # noqa: F401 - registers the ids
+
+    env = gymnasium.make(ENV_ID, max_cycles=40).unwrapped
+    obs, info = env.reset(seed=8)
+    par = env.par
+    assert np.flatnonzero(par.mover_mask).tolist() == [0] and env.action_space == gymnasium.spaces.Discrete(20)
+    decided = 0
+    while par.agents:
+        mask = env.action_masks()
+        if info["decides"]:
+            assert mask.tolist() == info["action_mask"].astype(bool).tolist() and 0 < mask.sum() <= 20
+            choice = int(np.flatnonzero(mask)[-1])
+            want = int(par.pending.resources[0, choice])
+            obs, reward, term, trunc, info = env.step(np.int64(choice))
+            assert par.sim.resource[0] == want
+            decided += 1
+        else:
+            assert mask.all()
+            obs, reward, term, trunc, info = env.step(np.int64(0))
+    assert decided >= 2
+    with pytest.raises(ValueError, match="continuous actions"):
+        gymnasium.make("cv2x/SingleMover-v3").unwrapped.action_masks()
