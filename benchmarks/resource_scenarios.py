@@ -3,7 +3,7 @@ ceiling (``optimum``) on training-list episodes of each scenario (docs/benchmark
 
     python benchmarks/resource_scenarios.py [--episodes 8] [--cycles 100] [--out docs/benchmark/resource_scenarios]
 
-Each scenario is the env's options (preset and overrides); the gain is the team's episode-mean utility per
+Each scenario is the env's options (preset and overrides, applied after the id's own); the gain is the team's episode-mean utility per
 target receiver against ``sps``'s on the same episode (the task's own measure), the PRR the team's episode mean.
 Writes ``scenarios.csv`` (one row per scenario, method and episode) and prints the table.
 """
@@ -29,7 +29,14 @@ _HIGHWAY = ("sps.selection_window_subframes=20", "sps.reselection_timing=period_
 SCENARIOS: dict[str, tuple[dict[str, Any], str]] = {
     "grid (the task)": ({}, "the paper's grid, 21 vehicles, the standard's SPS, T2 = 20 (2 sub-channels)"),
     "grid, paper SPS": (
-        {"overrides": ("sps.selection_window_subframes=20",)},
+        {  # after the id's own overrides: the paper preset's values back
+            "overrides": (
+                "sps.selection=paper",
+                "sps.reservation_signalling=always",
+                "sps.sci_decoding=always",
+                "sps.sci_gates_pssch=false",
+            )
+        },
         "the paper preset's simplified SPS (k = 3 lowest S-RSSI, every SCI reserves), T2 = 20",
     ),
     "highway ring 210 m": (

@@ -319,3 +319,58 @@ def test_gymnasium_view_and_its_action_masks():
     assert decided >= 2
     with pytest.raises(ValueError, match="continuous actions"):
         gymnasium.make("cv2x/SingleMover-v3").unwrapped.action_masks()
+
+
+def _objective_by_hand(mw, resource, n_sub, noise_mw, curve, p_min):
+    """The ceiling's objective written out link by link: SINR with the co-channel users' mean powers summed, the
+    link curve, 0 in the own subframe (half duplex) or out of range, the mean over the vehicles of the mean over
+    their targets (every vehicle in range) of ln max(P, p_min)."""
+    n = len(resource)
+    per_vehicle = []
+    for tx in range(n):
+        terms = []
+        for rx in range(n):
+            if rx == tx or mw[tx, rx] <= 0.0:
+                continue
+            if resource[rx] // n_sub == resource[tx] // n_sub:
+                p = 0.0
+            else:
+                interference = sum(mw[u, rx] for u in range(n) if u not in (tx, rx) and resource[u] == resource[tx])
+                p = float(curve.success(10 * math.log10(mw[tx, rx] / (interference + noise_mw))))
+            terms.append(math.log(max(p, p_min)))
+        per_vehicle.append(sum(terms) / max(len(terms), 1))
+    return sum(per_vehicle) / n
+
+
+def test_ceiling_is_the_brute_force_best_with_one_or_two_deciders():
+    """At steps with one or two deciding vehicles the ceiling's choice reaches the best expected team objective of
+    every combination of their entries, the objective computed independently, link by link."""
+    import itertools
+
+    from cv2x_marl.env.traffic_measurement import period_rx_dbm
+
+    env = make_parallel_env(ENV_ID, max_cycles=40)
+    ceiling = make_resource_policy("optimum", env)
+    obs, _ = env.reset(seed=TASKS["resource"].train_seeds[5])
+    checked = 0
+    while env.agents:
+        p = env.pending
+        deciders = np.flatnonzero(p.decides)
+        if 1 <= deciders.size <= 2 and checked < 4:
+            sim = env.sim
+            rx = period_rx_dbm(sim.last_geometry, env.n)
+            mw = np.where(np.isfinite(rx), 10 ** (rx / 10), 0.0)
+            base = sim.scheduler.resource.copy()
+            args = (2, sim.scheduler.noise_mw, sim.chunks.curve, env.p_min)
+            values = []
+            for combo in itertools.product(*(range(int(p.n_valid[i])) for i in deciders)):
+                res = base.copy()
+                res[deciders] = p.resources[deciders, list(combo)]
+                values.append(_objective_by_hand(mw, res, *args))
+            choice = ceiling.choices()
+            res = base.copy()
+            res[deciders] = p.resources[deciders, choice[deciders]]
+            assert _objective_by_hand(mw, res, *args) == pytest.approx(max(values), rel=1e-9, abs=1e-12)
+            checked += 1
+        obs, *_ = env.step(ceiling.act(obs))
+    assert checked == 4
