@@ -3,8 +3,9 @@ ceiling (``optimum``) on training-list episodes of each scenario (docs/benchmark
 
     python benchmarks/resource_scenarios.py [--episodes 8] [--cycles 100] [--out docs/benchmark/resource_scenarios]
 
-Each scenario is the env's options (preset and overrides, applied after the id's own); the gain is the team's episode-mean utility per
-target receiver against ``sps``'s on the same episode (the task's own measure), the PRR the team's episode mean.
+Each scenario is the env's options (preset and overrides, applied after the id's own); the gain is the team's
+episode-mean utility per target receiver against ``sps``'s on the same episode (the task's own measure), the PRR
+the team's episode mean.
 Writes ``scenarios.csv`` (one row per scenario, method and episode) and prints the table.
 """
 
