@@ -118,3 +118,167 @@ class StateCritic(nn.Module):
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:
         return self.v(state)
+
+
+#: the actor kinds of a MAPPO ``model.pt`` (``actor_kind``; files without the key hold a ``gaussian`` one)
+ACTOR_KINDS = ("gaussian", "categorical")
+#: what :class:`MaskedActor` reads: the flat observation (``mlp``) or each candidate's entries (``candidates``)
+MASKED_ENCODERS = ("mlp", "candidates")
+
+
+def candidate_spec(layout: Any) -> dict[str, int]:
+    """Where the candidate block and the ``decides`` flag sit in an observation of version 5 (plain ints: saved with
+    the actor's keyword arguments, so the file rebuilds it without the env).
+
+    Args:
+        layout: the env's :class:`~cv2x_marl.env.observation.ObservationLayout` (``env.layout``), version 5.
+
+    Returns:
+        ``start`` (index of the first candidate's first entry), ``count`` (candidates K), ``features`` (entries F per
+        candidate, the first ``valid``), ``decides`` (index of the own ``decides`` entry) and ``size``.
+
+    Raises:
+        ValueError: a layout without a candidate block.
+    """
+    from cv2x_marl.env.observation import (
+        CANDIDATE_NAMES,
+        FEATURES_CANDIDATE,
+        N_CANDIDATES,
+        OWN_V4,
+        OWN_V5_EXTRA,
+    )
+
+    if int(layout.version) != 5:
+        raise ValueError(
+            f"a masked resource actor needs observation version 5 (the candidate block), got {layout.version}"
+        )
+    assert CANDIDATE_NAMES[0] == "valid" and OWN_V5_EXTRA[0] == "decides"
+    decides = int(layout.own_v1_offset + OWN_V4)
+    return {
+        "start": decides + len(OWN_V5_EXTRA),
+        "count": int(N_CANDIDATES),
+        "features": int(FEATURES_CANDIDATE),
+        "decides": decides,
+        "size": int(layout.size),
+    }
+
+
+class MaskedActor(nn.Module):
+    """A shared actor for a masked ``Discrete(n)`` action (``cv2x/Resource-v0``: an entry of the candidate list).
+
+    It gives the logits [..., n] of a categorical distribution; the entries the mask rules out get ``-inf`` (TorchRL's
+    ``MaskedCategorical`` in training, :meth:`deterministic` here). The mask of an observation is
+    :meth:`mask_of`: the candidate's ``valid`` entry where the own ``decides`` entry is set, which equals the env's
+    ``action_masks()`` row (tested).
+
+    * ``encoder: mlp``: an MLP (tanh) on the flat observation -> n logits.
+    * ``encoder: candidates``: one network shared over the candidates (a pointer-style scorer): the context
+      ``g = rho(o)`` of every entry outside the candidate block (``o``: the neighbour blocks and the own entries),
+      each candidate's embedding ``e_c = phi([x_c, c / n])`` from its F entries and its rank in the list, and the
+      logit ``head([e_c, g, mean_{valid c'} e_c'])`` (tanh layers of ``net``). The same function scores every entry,
+      so what it learns about one rank carries to the others.
+
+    Args:
+        obs_size: the observation's length.
+        n_actions: n (the list's length).
+        net: hidden layers of the MLP (``mlp``) or of the candidate head (``candidates``).
+        encoder: ``mlp`` | ``candidates``.
+        encoder_units: d of ``rho`` and ``phi`` (``candidates``).
+        candidates: :func:`candidate_spec` of the env's layout.
+    """
+
+    kind = "categorical"
+
+    def __init__(
+        self,
+        obs_size: int,
+        n_actions: int,
+        net: tuple[int, ...] | list[int] = (128, 128),
+        encoder: str = "candidates",
+        encoder_units: int = 64,
+        candidates: dict[str, int] | None = None,
+    ) -> None:
+        super().__init__()
+        if encoder not in MASKED_ENCODERS:
+            raise ValueError(f"encoder must be one of {', '.join(MASKED_ENCODERS)} for a masked actor, got {encoder!r}")
+        if candidates is None:
+            raise ValueError("a masked actor needs candidates=candidate_spec(env.layout) (where its mask is read)")
+        spec = {k: int(v) for k, v in dict(candidates).items()}
+        if spec.get("size") != int(obs_size) or spec.get("count") != int(n_actions):
+            raise ValueError(f"candidates {spec} do not fit observations of {obs_size} entries and {n_actions} actions")
+        self._spec = {
+            "obs_size": int(obs_size),
+            "n_actions": int(n_actions),
+            "net": [int(u) for u in net],
+            "encoder": str(encoder),
+            "encoder_units": int(encoder_units),
+            "candidates": spec,
+        }
+        self.obs_size, self.n_actions, self.encoder = int(obs_size), int(n_actions), str(encoder)
+        k, f, start = spec["count"], spec["features"], spec["start"]
+        self.n_features = f
+        block = torch.arange(start, start + k * f)
+        self.block: torch.Tensor
+        self.context: torch.Tensor
+        self.valid: torch.Tensor
+        self.rank: torch.Tensor
+        self.register_buffer("block", block, persistent=False)
+        keep = torch.ones(self.obs_size, dtype=torch.bool)
+        keep[block] = False
+        self.register_buffer("context", torch.nonzero(keep).flatten(), persistent=False)
+        self.register_buffer("valid", block.reshape(k, f)[:, 0].clone(), persistent=False)
+        self.register_buffer("rank", (torch.arange(k, dtype=torch.float32) / k).reshape(k, 1), persistent=False)
+        self.decides = spec["decides"]
+        d = int(encoder_units)
+        if encoder == "mlp":
+            self.logits_net = mlp(self.obs_size, net, self.n_actions, out_gain=0.01)
+        else:
+            self.rho = mlp(int(self.context.numel()), (d,), d)
+            self.phi = mlp(f + 1, (d,), d)
+            self.head = mlp(3 * d, net, 1, out_gain=0.01)
+
+    def spec(self) -> dict[str, Any]:
+        """The keyword arguments that rebuild this actor (plain values)."""
+        spec: dict[str, Any] = dict(self._spec)
+        spec["candidates"] = dict(spec["candidates"])
+        return spec
+
+    def mask_of(self, obs: torch.Tensor) -> torch.Tensor:
+        """[..., n] bool: the valid entries of a deciding agent's list (none without a decision)."""
+        valid = obs.index_select(-1, self.valid) > 0.5
+        return valid & (obs[..., self.decides : self.decides + 1] > 0.5)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """``obs`` [..., obs_size] -> logits [..., n] (unmasked)."""
+        lead = obs.shape[:-1]
+        x = obs.reshape(-1, self.obs_size)
+        if self.encoder == "mlp":
+            return self.logits_net(x).reshape(*lead, self.n_actions)
+        b, k = x.shape[0], self.n_actions
+        cand = x.index_select(-1, self.block).reshape(b, k, self.n_features)
+        e = self.phi(torch.cat((cand, self.rank.expand(b, k, 1)), dim=-1))  # [B, K, d]
+        g = self.rho(x.index_select(-1, self.context))  # [B, d]
+        w = cand[..., :1]  # the valid entries
+        pooled = (e * w).sum(1) / w.sum(1).clamp(min=1.0)
+        both = torch.cat((g, pooled), dim=-1).unsqueeze(1).expand(b, k, -1)
+        return self.head(torch.cat((e, both), dim=-1)).reshape(*lead, k)
+
+    def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
+        """The most probable valid entry [...] (int64; 0 where the mask is all zero: no decision)."""
+        logits = self(obs).masked_fill(~self.mask_of(obs), float("-inf"))
+        best = logits.argmax(-1)
+        return torch.where(torch.isfinite(logits.amax(-1)), best, torch.zeros_like(best))
+
+
+class ObservationCritic(nn.Module):
+    """A per-agent critic: an MLP (tanh) on one agent's input [..., n_in] -> its value [..., 1]; the input is the
+    agent's own observation (``critic: observation``: independent PPO) or ``state()`` followed by it (``critic: state``
+    with individual rewards: the agent-specific global state of Yu et al. 2022)."""
+
+    def __init__(self, n_in: int, net: tuple[int, ...] | list[int] = (256, 256)) -> None:
+        super().__init__()
+        self.n_in = int(n_in)
+        self.v = mlp(self.n_in, net, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.v(x)
