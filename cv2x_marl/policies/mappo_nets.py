@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 try:
     import torch
     from torch import nn
@@ -185,6 +187,10 @@ class MaskedActor(nn.Module):
         encoder: ``mlp`` | ``candidates``.
         encoder_units: d of ``rho`` and ``phi`` (``candidates``).
         candidates: :func:`candidate_spec` of the env's layout.
+        dither: the weight of the observation's own Gumbel noise in :meth:`deterministic` (0: the plain argmax). A
+            plain argmax breaks near-ties the same way for every vehicle that senses alike, so vehicles pile onto
+            the same resources (the herding the standard's random draw avoids: ``lowest-rssi``); 1 makes the
+            choice a sample of the categorical drawn with the observation as its seed (docs/rl.md).
     """
 
     kind = "categorical"
@@ -197,6 +203,7 @@ class MaskedActor(nn.Module):
         encoder: str = "candidates",
         encoder_units: int = 64,
         candidates: dict[str, int] | None = None,
+        dither: float = 0.0,
     ) -> None:
         super().__init__()
         if encoder not in MASKED_ENCODERS:
@@ -213,6 +220,7 @@ class MaskedActor(nn.Module):
             "encoder": str(encoder),
             "encoder_units": int(encoder_units),
             "candidates": spec,
+            "dither": float(dither),
         }
         self.obs_size, self.n_actions, self.encoder = int(obs_size), int(n_actions), str(encoder)
         k, f, start = spec["count"], spec["features"], spec["start"]
@@ -229,6 +237,9 @@ class MaskedActor(nn.Module):
         self.register_buffer("valid", block.reshape(k, f)[:, 0].clone(), persistent=False)
         self.register_buffer("rank", (torch.arange(k, dtype=torch.float32) / k).reshape(k, 1), persistent=False)
         self.decides = spec["decides"]
+        if not (np.isfinite(dither) and dither >= 0):
+            raise ValueError(f"dither must be a number >= 0, got {dither!r}")
+        self.dither = float(dither)
         d = int(encoder_units)
         if encoder == "mlp":
             self.logits_net = mlp(self.obs_size, net, self.n_actions, out_gain=0.01)
@@ -264,10 +275,37 @@ class MaskedActor(nn.Module):
         return self.head(torch.cat((e, both), dim=-1)).reshape(*lead, k)
 
     def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
-        """The most probable valid entry [...] (int64; 0 where the mask is all zero: no decision)."""
-        logits = self(obs).masked_fill(~self.mask_of(obs), float("-inf"))
+        """The deterministic choice [...] (int64; 0 where the mask is all zero: no decision): the argmax over the
+        valid entries of the logits, plus ``dither`` times :func:`observation_gumbel` of each row when ``dither`` > 0
+        (with ``dither = 1`` the Gumbel-max trick: the choice is distributed over observations as a sample of the
+        trained categorical, yet a function of the row alone)."""
+        mask = self.mask_of(obs)
+        logits = self(obs)
+        if self.dither > 0:
+            flat = obs.reshape(-1, self.obs_size).detach().cpu().numpy()
+            noise = np.stack([observation_gumbel(row, self.n_actions) for row in flat]) if flat.size else None
+            if noise is not None:
+                logits = logits + self.dither * torch.from_numpy(noise).to(logits.dtype).reshape(logits.shape)
+        logits = logits.masked_fill(~mask, float("-inf"))
         best = logits.argmax(-1)
         return torch.where(torch.isfinite(logits.amax(-1)), best, torch.zeros_like(best))
+
+
+#: the grid an observation is rounded to before :func:`observation_gumbel` hashes it (a last-bit difference of an
+#: entry then changes the noise only where it crosses a grid line)
+DITHER_GRID = 2.0**-8
+
+
+def observation_gumbel(obs: np.ndarray, n: int) -> np.ndarray:
+    """``n`` standard Gumbel values [n] (float64) drawn from a generator seeded with a hash of the observation ``obs``
+    (rounded to :data:`DITHER_GRID`): pseudo-random, different for different observations, and the same for the same
+    observation whatever else is acting (the batch-invariance rule of :mod:`cv2x_marl.policies.base`)."""
+    import hashlib
+
+    q = np.round(np.asarray(obs, dtype=np.float64) / DITHER_GRID).astype(np.int64)
+    digest = hashlib.blake2b(q.tobytes(), digest_size=16).digest()
+    u = np.random.default_rng(int.from_bytes(digest, "little")).random(n)
+    return np.asarray(-np.log(-np.log(np.clip(u, 1e-300, 1.0 - 1e-16))), dtype=np.float64)
 
 
 class ObservationCritic(nn.Module):

@@ -112,9 +112,20 @@ class MappoSettings:
     encoder_units: int = 64
     #: what the critic reads (:data:`CRITICS`); ``observation`` only with masked actions (cv2x/Resource-v0)
     critic: str = "state"
+    #: masked actions: the weight of the observation-seeded Gumbel noise in the deterministic choice (0: the plain
+    #: argmax over the valid entries; :class:`~cv2x_marl.policies.mappo_nets.MaskedActor`)
+    dither: float = 0.0
 
     def __post_init__(self) -> None:
-        check_reals(self, "mappo", {**PPO_REALS, "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]")})
+        check_reals(
+            self,
+            "mappo",
+            {
+                **PPO_REALS,
+                "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]"),
+                "dither": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
+            },
+        )
         for name in ("n_epochs", "minibatch_steps", "encoder_units"):
             object.__setattr__(self, name, count_at_least(f"mappo.{name}", getattr(self, name)))
         if self.encoder_units > MAX_UNITS:
@@ -177,6 +188,8 @@ class MappoConfig:
                 f"mappo.encoder {self.mappo.encoder!r} does not act on {self.env_id}; "
                 f"encoders there: {', '.join(allowed)}"
             )
+        if not masked and self.mappo.dither != 0:
+            raise TrainError(f"mappo.dither is for the masked choices of {', '.join(MASKED_ENV_IDS)} (leave it out)")
         if not masked and self.mappo.critic != "state":
             raise TrainError(
                 f"mappo.critic {self.mappo.critic!r}: {self.env_id} trains with the critic on state() (the team "
@@ -187,8 +200,11 @@ class MappoConfig:
         d = dataclasses.asdict(self)
         d["mappo"]["actor_net"] = list(self.mappo.actor_net)
         d["mappo"]["critic_net"] = list(self.mappo.critic_net)
-        if self.mappo.critic == "state":  # the default is left out: run folders written before the key still --resume
+        # the defaults of the masked path's keys are left out: run folders written before them still --resume
+        if self.mappo.critic == "state":
             del d["mappo"]["critic"]
+        if self.mappo.dither == 0:
+            del d["mappo"]["dither"]
         return {"algo": d.pop("algo"), **d}
 
 

@@ -74,7 +74,9 @@ def build_masked(run: Mappo, first: Any, torch_seed: int) -> None:
     n_in = {"observation": run.obs_size, "state": run.state_size, "state+observation": run.state_size + run.obs_size}
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(torch_seed)
-        run.actor = MaskedActor(run.obs_size, run.n_actions, m.actor_net, m.encoder, m.encoder_units, spec)
+        run.actor = MaskedActor(
+            run.obs_size, run.n_actions, m.actor_net, m.encoder, m.encoder_units, spec, dither=m.dither
+        )
         if run.critic_kind == "state":
             inner: Any = StateCritic(run.state_size, m.critic_net)
         else:

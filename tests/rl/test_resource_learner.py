@@ -212,3 +212,30 @@ def test_bad_masked_configs_are_refused(tmp_path: Path, text: str, match: str) -
     f.write_text("algo: mappo\nmappo:\n  encoder: candidates\n")
     with pytest.raises(TrainError, match="encoders there: mlp, deepsets, attention"):
         load_mappo_config(f)
+
+
+def test_the_dithered_choice_is_a_function_of_the_row_and_stays_in_the_mask(run) -> None:  # type: ignore[no-untyped-def]
+    """dither > 0: the argmax over the valid entries of the logits plus the observation's own Gumbel noise; the same
+    row gives the same choice alone or stacked with others; another row, other noise."""
+    from cv2x_marl.policies.mappo_nets import observation_gumbel
+
+    spec = run.actor.spec()
+    actor = MaskedActor(**{**spec, "dither": 1.0})
+    actor.load_state_dict(run.actor.state_dict())
+    rng = np.random.default_rng(2)
+    rows = 64
+    mask = _masks(rng, rows, run.n_actions)
+    obs = _with_masks(actor, rng.normal(size=(rows, run.obs_size)).astype(np.float32), mask, np.ones(rows, bool))
+    noise = np.stack([observation_gumbel(o, run.n_actions) for o in obs])
+    assert np.array_equal(noise[0], observation_gumbel(obs[0].copy(), run.n_actions))
+    assert not np.array_equal(noise[0], noise[1]) and abs(noise.mean() - 0.5772) < 0.1  # Gumbel's mean: Euler's gamma
+    with torch.no_grad():
+        x = torch.from_numpy(obs)
+        logits = actor(x).double().numpy()
+        stacked = actor.deterministic(x).numpy()
+        alone = np.array([int(actor.deterministic(x[i : i + 1])[0]) for i in range(rows)])
+    np.testing.assert_array_equal(stacked, alone)
+    np.testing.assert_array_equal(stacked, np.where(mask, logits + noise, -np.inf).argmax(1))
+    assert mask[np.arange(rows), stacked].all()
+    with pytest.raises(ValueError, match="dither"):
+        MaskedActor(**{**spec, "dither": -1.0})
