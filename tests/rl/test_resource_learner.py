@@ -239,3 +239,42 @@ def test_the_dithered_choice_is_a_function_of_the_row_and_stays_in_the_mask(run)
     assert mask[np.arange(rows), stacked].all()
     with pytest.raises(ValueError, match="dither"):
         MaskedActor(**{**spec, "dither": -1.0})
+
+
+def test_quick_training_beats_random_and_lowest_rssi(tmp_path: Path) -> None:
+    """8 iterations of 4 copies x 50 steps (about 5 CPU-s), scored on 4 training-list episodes outside the pool."""
+    from cv2x_marl.experiments.evaluate import evaluate
+
+    cfg = MappoConfig(
+        env_id=ENV,
+        copies=4,
+        env={"max_cycles": 50, "start_pool": 16},
+        mappo=MappoSettings(
+            n_epochs=4,
+            minibatch_steps=25,
+            gamma=0.9,
+            actor_net=(32,),
+            critic_net=(64,),
+            encoder="candidates",
+            encoder_units=32,
+            critic="observation",
+            dither=1.0,
+        ),
+        eval_every=1000,
+        eval_episodes=1,
+    )
+    train_mappo(cfg, 8 * 4 * 50 * 21, 0, tmp_path / "r", progress=False)
+    seeds = [int(s) for s in TRAIN_SEEDS[300:304]]
+    kw = {"max_cycles": 50}
+    got = {
+        name: evaluate(None if name.startswith("ppo:") else ENV, name, 0, 0, None, kw, progress=False, seeds=seeds)
+        for name in (f"ppo:{tmp_path / 'r' / 'model.pt'}", "random", "lowest-rssi")
+    }
+    learned, rnd, low = got.values()
+    assert learned["env"] == ENV and learned["gains_of"] == rnd["gains_of"]
+    # measured (team gains against sps on these 4 episodes): learned +12.3 % utility / +5.0 % PRR (training seeds
+    # 1-3: +9.9 %, +12.2 %, +9.5 %), random -2.1 % / -1.3 %, lowest-rssi -44.2 % / -18.9 %
+    assert learned["mean_utility_gain"] > rnd["mean_utility_gain"] + 0.06
+    assert learned["mean_prr_gain"] > rnd["mean_prr_gain"] + 0.02
+    assert learned["mean_utility_gain"] > low["mean_utility_gain"] + 0.3
+    assert learned["mean_return"] > rnd["mean_return"] > low["mean_return"]
