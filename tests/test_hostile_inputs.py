@@ -248,7 +248,11 @@ def test_after_the_warm_up_a_fresh_process_compiles_nothing_for_any_env_id() -> 
         "    env = make_parallel_env(env_id)\n"
         "    env.reset(seed=11)\n"
         "    for _ in range(2):\n"
-        "        env.step({a: np.full(env.action_space(a).shape, 0.5, np.float32) for a in env.agents})\n"
+        "        space = env.action_space(env.possible_agents[0])\n"
+        "        if space.shape:\n"
+        "            env.step({a: np.full(space.shape, 0.5, np.float32) for a in env.agents})\n"
+        "        else:  # a resource choice (cv2x/Resource-v0): a list entry\n"
+        "            env.step({a: np.int64(1) for a in env.agents})\n"
     )
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from cv2x_marl.cli.common import (
     COUNT,
@@ -50,7 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seed", type=SEED, default=None, help="episode k resets with the k-th seed derived from it (default 0)"
     )
-    p.add_argument("--preset", default="paper", choices=PRESET_CHOICES)
+    p.add_argument(
+        "--preset", default=None, choices=PRESET_CHOICES, help="scenario preset (default: the env id's, paper)"
+    )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override (repeatable)")
     add_option_flag(p, "max_cycles")
     add_option_flag(p, "max_step_m", "--max-step")
@@ -73,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
     from cv2x_marl.experiments import evaluate as ev
     from cv2x_marl.regression.model import resolve_model
 
-    env_kwargs = {"preset": args.preset, "overrides": args.set or [], "max_cycles": args.max_cycles}
+    env_kwargs: dict[str, Any] = {"max_cycles": args.max_cycles}
+    if args.preset is not None:  # else the id's own (paper)
+        env_kwargs["preset"] = args.preset
+    if args.set:  # after the id's own overrides, where it has some (cv2x/Resource-v0)
+        env_kwargs["overrides"] = args.set
     env_kwargs["max_step_m"] = args.max_step
     if args.replan_every is not None:
         env_kwargs["replan_every"] = args.replan_every

@@ -18,7 +18,7 @@ SCALE = "scale_m"
 V0_NEIGHBOUR = (
     ("dx", "position of j relative to the agent i, x", SCALE),
     ("dy", "position of j relative to i, y", SCALE),
-    ("target", "1 if j is a target receiver of i's packets (not in i's subframe)", "-"),
+    ("target", "1 if j is a target receiver of i's packets (not in i's subframe; Resource-v0: in link range)", "-"),
     ("nsv", "NSV_j: vehicles on i's resource within the interferer range of j (i excluded)", "vehicles"),
     ("has_interferer", "1 if j has a main interferer (NSV_j > 0)", "-"),
     ("interferer_dx", "position of j's main interferer relative to i, x (0 when none)", SCALE),

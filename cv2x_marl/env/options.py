@@ -154,7 +154,8 @@ class EnvOptions:
     overrides: Sequence[str] = _option(
         "start",
         (),
-        "`section.key=value` strings (see `docs/config.md`); a single string is one assignment",
+        "`section.key=value` strings (see `docs/config.md`); a single string is one assignment; an id with overrides "
+        "of its own (`cv2x/Resource-v0`: its SPS procedures) applies those given after its own",
         shown="()",
         allowed="a section.key=value string or a list of them",
     )
@@ -556,7 +557,7 @@ class EnvOptions:
                 "config.sps.reselection_timing",
                 cfg.sps.reselection_timing,
                 "period_end with traffic_action resource (the vehicles decide at the period's end, one step per "
-                "period; cv2x/Resource-v0 sets it)",
+                "period: add sps.reselection_timing=period_end to overrides)",
             )
         if self.speed_command != "target" and cfg.vehicles.mobility != "model":
             refuse("speed_command", self.speed_command, "target unless vehicles.mobility=model (the lane model)")

@@ -85,7 +85,9 @@ def _action_section(env: MobilityEnv) -> list[str]:
             f"vehicle's list (at most {N_CANDIDATES}). In the next step the vehicle *decides*: its action picks the "
             "entry it transmits on from the next period until its next reselection. Its info's `action_mask` (int8, "
             f"[{N_CANDIDATES}]) marks the valid entries (all 0 without a decision) and `decides` is 1.0; "
-            "`env.action_masks()` gives every vehicle's mask as one array. The action of a vehicle without a "
+            "`env.action_masks()` gives every vehicle's mask as one array (the Gymnasium view's "
+            "`env.unwrapped.action_masks()`, sb3-contrib's `MaskablePPO` convention: vehicle 0's list when it decides, "
+            "every entry otherwise). The action of a vehicle without a "
             "decision, and an entry past the list, keep the standard's own draw (uniform among the first "
             "`ceil(0.2 M)` entries, step 8). An action that is not an integer in the space is refused with an error "
             "naming the agent.",

@@ -202,19 +202,32 @@ def env_version(env_id: str) -> str:
 def make_parallel_env(env_id: str, **kwargs: Any) -> MobilityEnv:
     """The parallel env of a registered id (what ``pettingzoo.make("parallel", env_id)`` builds, and what the
     Gymnasium id wraps): :class:`~cv2x_marl.env.mobility_env.MobilityEnv` with the id's defaults, its movers
-    (:attr:`EnvSpec.movers`) and its metadata name; ``kwargs`` as ``MobilityEnv``, over the defaults."""
+    (:attr:`EnvSpec.movers`) and its metadata name; ``kwargs`` as ``MobilityEnv``, over the defaults. Where the id
+    sets scenario ``overrides`` of its own (``cv2x/Resource-v0``'s SPS procedures), those given are applied after
+    them (a later assignment of a key wins), not instead."""
     from cv2x_marl.env.mobility_env import MobilityEnv
 
     spec = spec_of(env_id)
-    options = {**VERSION_DEFAULTS[spec.defaults]}
+    defaults = VERSION_DEFAULTS[spec.defaults]
+    options = {**defaults}
     if spec.movers == "vehicle0-default":
         options["movers"] = [0]
+    given = kwargs.get("overrides")
+    own = defaults.get("overrides")
+    if own is not None and (isinstance(given, str) or _strings(given)):  # the id's, then the caller's
+        extra: tuple[str, ...] = (given,) if isinstance(given, str) else tuple(given or ())
+        kwargs = {**kwargs, "overrides": (*own, *extra)}
     options.update(kwargs)
     if spec.movers == "vehicle0":
         options["movers"] = [0]
     env = MobilityEnv(**options)
     env.metadata = {**MobilityEnv.metadata, "name": spec.name}  # type: ignore[misc]  # per id, on the instance
     return env
+
+
+def _strings(value: Any) -> bool:
+    """Whether ``value`` is a list or tuple of strings (scenario overrides to append to an id's own)."""
+    return isinstance(value, list | tuple) and all(isinstance(v, str) for v in value)
 
 
 def make_aec_env(env_id: str, **kwargs: Any) -> Any:

@@ -33,6 +33,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from cv2x_marl.env import step as step_core
 from cv2x_marl.env.dynamics import Moved, Traffic, register_dynamics
 from cv2x_marl.env.measurement import RSRP_REF_DBM, RSRP_SCALE_DB, scaled_rsrp
 from cv2x_marl.env.observation import (
@@ -128,15 +129,7 @@ def decode_choices(
         KeyError: an unknown or finished agent, or a live agent without an action (named).
         ValueError: an action that is not an integer of the space (named, with the allowed values).
     """
-    if not isinstance(actions, dict):
-        raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
-    if actions.keys() != live:
-        unknown = [a for a in actions if a not in live]
-        if unknown:
-            shown = f"{agents[0]} .. {agents[-1]}" if agents else "none"
-            raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {shown}")
-        missing = [a for a in agents if a not in actions]
-        raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+    step_core.check_action_agents(actions, live, agents)
     out = np.zeros(len(possible_agents), dtype=np.int64)
     for agent, value in actions.items():
         arr = np.asarray(value)

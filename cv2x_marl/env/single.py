@@ -77,6 +77,19 @@ class SingleMoverEnv(gym.Env):
         obs, rew, term, trunc, info = self.par.step(actions)
         return obs[AGENT], rew[AGENT], term[AGENT], trunc[AGENT], info[AGENT]
 
+    def action_masks(self) -> NDArray[np.bool_]:
+        """Vehicle 0's valid actions now, as sb3-contrib's ``MaskablePPO`` asks (``cv2x/Resource-v0``: the entries of
+        its candidate list when it decides, every action otherwise, since its action is then ignored).
+
+        Raises:
+            ValueError: the id's actions are continuous (no mask).
+        """
+        masks = self.par.action_masks()
+        if masks is None:
+            raise ValueError(f"{self.env_id} has continuous actions: no action mask (cv2x/Resource-v0 has one)")
+        mine = masks[self.par.agent_index[AGENT]].astype(bool)
+        return mine if mine.any() else np.ones_like(mine)
+
     def render(self) -> Any:
         return self.par.render()
 

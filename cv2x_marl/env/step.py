@@ -482,6 +482,25 @@ def speed_change_commands(
     return target, lanes
 
 
+def check_action_agents(actions: Any, live: set[str], agents: list[str]) -> None:
+    """Refuse a step's ``actions`` unless they are a dict with one entry per live agent (``live``; ``agents``: the live
+    agents in order, for the messages): every action kind checks this first.
+
+    Raises:
+        TypeError: ``actions`` is not a dict.
+        KeyError: an unknown or finished agent, or a live agent without an action (named).
+    """
+    if not isinstance(actions, dict):
+        raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
+    if actions.keys() != live:
+        unknown = [a for a in actions if a not in live]
+        if unknown:
+            shown = f"{agents[0]} .. {agents[-1]}" if agents else "none"
+            raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {shown}")
+        missing = [a for a in agents if a not in actions]
+        raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+
+
 def decode_actions(
     actions: Any,
     live: set[str],
@@ -504,15 +523,7 @@ def decode_actions(
         KeyError: an unknown or finished agent, or a live agent without an action (named).
         ValueError: an action that is not numeric, not of shape (2,) or not finite (named with its agent).
     """
-    if not isinstance(actions, dict):
-        raise TypeError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
-    if actions.keys() != live:
-        unknown = [a for a in actions if a not in live]
-        if unknown:
-            shown = f"{agents[0]} .. {agents[-1]}" if agents else "none"
-            raise KeyError(f"unknown or finished agent(s) {unknown}; live agents: {shown}")
-        missing = [a for a in agents if a not in actions]
-        raise KeyError(f"missing action(s) for {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+    check_action_agents(actions, live, agents)
     try:
         arr = np.array(list(actions.values()), dtype=np.float64).reshape(len(actions), 2)
     except (ValueError, TypeError):  # ragged, wrong size or not numeric: find the culprit

@@ -100,10 +100,11 @@ def plan_jobs(
     all of them in one job), checked before anything runs: available tasks, methods each task accepts
     (its refusals, names :func:`~cv2x_marl.policies.registry.make_policy` knows, searches it can afford:
     each task's env and policies are built once here)."""
-    from cv2x_marl.env.tasks import get_task
+    from cv2x_marl.env.tasks import CONTROL_TASKS, get_task
     from cv2x_marl.policies.registry import SCRIPTED, make_policy
 
-    chosen = [get_task(n, tasks) for n in (names or list(tasks))]
+    default = [n for n in tasks if n not in CONTROL_TASKS] or list(tasks)  # the control task on request only
+    chosen = [get_task(n, tasks) for n in (names or default)]
     if len({t.name for t in chosen}) != len(chosen):
         raise ValueError(f"--tasks: a task given twice in {list(names or [])}")
     missing = [f"{t.name} ({t.env_id})" for t in chosen if not t.available]
@@ -376,7 +377,11 @@ def run_benchmark(
 def add_arguments(p: argparse.ArgumentParser, count: Callable[[str], Any], overwrite_help: str) -> None:
     """The ``cv2x-marl benchmark`` flags (``count``: the CLI's integer >= 1 type)."""
     p.add_argument("--out", type=Path, required=True, help="run folder: benchmark.csv, summary.json, table.md, .png")
-    p.add_argument("--tasks", help="tasks, comma-separated (default: every task of the benchmark, docs/benchmark.md)")
+    p.add_argument(
+        "--tasks",
+        help="tasks, comma-separated (default: singlemover, cooperative, resource; the control task traffic on "
+        "request; docs/benchmark.md)",
+    )
     p.add_argument("--methods", help="scripted methods, comma-separated (default: each task's; the ceiling always)")
     p.add_argument(
         "--model",

@@ -49,7 +49,6 @@ BENCHMARK_MODELS = {
     "singlemover": "singlemover-v3_seed*/model.zip",
     "singlemover/map": "singlemover-map_seed*/model.npz",
     "cooperative": "cooperative_seed*/model.pt",
-    "traffic": "traffic_seed*/model.zip",
 }
 
 

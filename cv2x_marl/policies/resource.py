@@ -10,8 +10,9 @@ the vehicle's candidate list, which its observation describes (``observation`` v
                   it) is farthest away, an unreserved one first; ties to the fewest neighbours heard in its
                   subframe (they could not hear the vehicle: half duplex), then to the lower S-RSSI
     optimum       the ceiling (privileged): a centralised choice at each reselection that knows every vehicle's
-                  position and reservation now (not the future SPS draws): coordinate ascent over the deciding
-                  vehicles' lists on the expected team objective of the coming period (:class:`ResourceCeiling`)
+                  position and reservation now (not the future SPS draws): the deciding vehicles' entries that
+                  maximise the expected team objective of the coming period, every combination tried for one or
+                  two deciders, coordinate ascent beyond (:class:`ResourceCeiling`)
 
 Every script reads only its own observation; the ceiling reads the env.
 """
@@ -19,6 +20,8 @@ Every script reads only its own observation; the ceiling reads the env.
 from __future__ import annotations
 
 import copy
+import itertools
+import math
 import zlib
 from typing import TYPE_CHECKING, Any
 
@@ -147,21 +150,24 @@ def team_objective(p: FloatArray, target: NDArray[np.bool_], p_min: float) -> fl
 
 
 class ResourceCeiling:
-    """The task's ceiling (privileged; module docstring): at each step, the deciding vehicles' entries by coordinate
-    ascent on the expected team objective of the coming period (:func:`expected_success` with the mean received
-    powers of the period just run, everyone's reservations now), starting from each one's lowest-S-RSSI entry
-    and sweeping the deciders in index order until no single change raises it (at most ``sweeps`` times).
+    """The task's ceiling (privileged; module docstring): at each step, the deciding vehicles' entries that maximise
+    the expected team objective of the coming period (:func:`expected_success` with the mean received powers of the
+    period just run, everyone's reservations now). Every combination of the deciders' entries is tried when there
+    are at most ``exhaustive`` of them (one or two deciders, as in most periods; ties: the first in the lists'
+    order); otherwise coordinate ascent, starting from each one's lowest-S-RSSI entry and sweeping the deciders in
+    index order until no single change raises it (at most ``sweeps`` times).
 
-    It is the best *found*, not a proven optimum, and it does not know the future SPS draws (other vehicles'
-    later reselections) or the fading.
+    It is the best *found* at each step (exact per step with few deciders), not an optimum over the episode, and it
+    does not know the future SPS draws (other vehicles' later reselections) or the fading.
     """
 
     name = "optimum"
 
-    def __init__(self, env: MobilityEnv, sweeps: int = 3) -> None:
+    def __init__(self, env: MobilityEnv, sweeps: int = 3, exhaustive: int = 400) -> None:
         check_resource_env(env, "optimum")
         self.env = env
         self.sweeps = sweeps
+        self.exhaustive = exhaustive
 
     def reset(self, seed: int | None = None) -> None:
         return None
@@ -188,6 +194,15 @@ class ResourceCeiling:
         def score(res: NDArray[np.int64]) -> float:
             return team_objective(expected_success(mean_mw, res, n_sub, noise, curve), target, p_min)
 
+        sizes = [int(pending.n_valid[i]) for i in deciders]
+        if math.prod(sizes) <= self.exhaustive:
+            best = -np.inf
+            for combo in itertools.product(*(range(k) for k in sizes)):
+                resource[deciders] = pending.resources[deciders, list(combo)]
+                value = score(resource)
+                if value > best + 1e-12:
+                    best, out[deciders] = value, combo
+            return out
         best = score(resource)
         for _ in range(self.sweeps):
             changed = False

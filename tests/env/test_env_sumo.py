@@ -181,3 +181,25 @@ def test_traffic_v0_sumo_option_policies_and_the_ceiling_replayed_from_the_seed(
             make_parallel_env("cv2x/Traffic-v0", preset="sumo-grid", **{name: value})
     with pytest.raises(ValueError, match=r"invalid env argument drive_observation=True.*sumo on the generated network"):
         make_parallel_env("cv2x/Traffic-v0", preset="sumo-grid", overrides=["vehicles.sumo_config=x.sumocfg"])
+
+
+def test_resource_choice_on_sumo_grid() -> None:
+    """``cv2x/Resource-v0`` with SUMO's vehicles (``preset="sumo-grid"``, the id's SPS procedures applied after
+    it): the vehicles decide, a chosen entry is the resource the vehicle then holds, and the checkers pass."""
+    from cv2x_marl.env.registry import make_parallel_env
+
+    env = make_parallel_env("cv2x/Resource-v0", preset="sumo-grid", max_cycles=12)
+    assert env.config.vehicles.mobility == "sumo" and env.config.sps.selection == "3gpp"
+    env.reset(seed=3)
+    decided = 0
+    while env.agents:
+        masks = env.action_masks()
+        acts = {a: np.int64(max(int(masks[i].sum()) - 1, 0)) for i, a in enumerate(env.possible_agents)}
+        want = {i: int(env.pending.resources[i, acts[a]]) for i, a in enumerate(env.possible_agents) if masks[i].any()}
+        env.step(acts)
+        for i, res in want.items():
+            assert env.sim.resource[i] == res
+        decided += len(want)
+    env.close()
+    assert decided > 0
+    parallel_api_test(make_parallel_env("cv2x/Resource-v0", preset="sumo-grid", max_cycles=4), num_cycles=6)
