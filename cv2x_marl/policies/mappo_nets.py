@@ -125,7 +125,7 @@ class StateCritic(nn.Module):
 #: the actor kinds of a MAPPO ``model.pt`` (``actor_kind``; files without the key hold a ``gaussian`` one)
 ACTOR_KINDS = ("gaussian", "categorical")
 #: what :class:`MaskedActor` reads: the flat observation (``mlp``) or each candidate's entries (``candidates``)
-MASKED_ENCODERS = ("mlp", "candidates")
+MASKED_ENCODERS = ("mlp", "candidates", "candidates-attention")
 
 
 def candidate_spec(layout: Any) -> dict[str, int]:
@@ -247,6 +247,9 @@ class MaskedActor(nn.Module):
             self.rho = mlp(int(self.context.numel()), (d,), d)
             self.phi = mlp(f + 1, (d,), d)
             self.head = mlp(3 * d, net, 1, out_gain=0.01)
+        self.attention: nn.MultiheadAttention | None = None
+        if encoder == "candidates-attention":  # the entries see each other (which share a subframe, ...)
+            self.attention = nn.MultiheadAttention(d, num_heads=4 if d % 4 == 0 else 1, batch_first=True)
 
     def spec(self) -> dict[str, Any]:
         """The keyword arguments that rebuild this actor (plain values)."""
@@ -268,6 +271,10 @@ class MaskedActor(nn.Module):
         b, k = x.shape[0], self.n_actions
         cand = x.index_select(-1, self.block).reshape(b, k, self.n_features)
         e = self.phi(torch.cat((cand, self.rank.expand(b, k, 1)), dim=-1))  # [B, K, d]
+        if self.attention is not None:
+            invalid = cand[..., 0] <= 0.5
+            invalid = invalid & ~invalid.all(-1, keepdim=True)  # no list: attend everywhere (its logits go unused)
+            e = e + self.attention(e, e, e, key_padding_mask=invalid, need_weights=False)[0]
         g = self.rho(x.index_select(-1, self.context))  # [B, d]
         w = cand[..., :1]  # the valid entries
         pooled = (e * w).sum(1) / w.sum(1).clamp(min=1.0)

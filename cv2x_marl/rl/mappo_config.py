@@ -48,15 +48,15 @@ MAPPO_ENV_IDS = ("cv2x/Cooperative-v0", "cv2x/Resource-v0")
 MASKED_ENV_IDS = ("cv2x/Resource-v0",)
 #: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.policies.encoders`; ``mlp``: the flat observation;
 #: ``candidates``: the masked actor's scorer shared over the candidate list)
-ENCODERS = ("mlp", "deepsets", "attention", "candidates")
+ENCODERS = ("mlp", "deepsets", "attention", "candidates", "candidates-attention")
 #: the encoders of each action kind: the Gaussian actor (Cooperative-v0) and the masked one (Resource-v0)
 GAUSSIAN_ENCODERS = ("mlp", "deepsets", "attention")
-MASKED_ENCODERS = ("mlp", "candidates")
+MASKED_ENCODERS = ("mlp", "candidates", "candidates-attention")
 #: ``mappo.critic``: ``state`` (MAPPO: ``state()``, with individual rewards followed by the agent's observation) or
 #: ``observation`` (independent PPO with parameter sharing: each agent's value from its own observation)
 CRITICS = ("state", "observation")
 #: the rewards a masked run may train on (``env.reward``; the env's default is ``individual``)
-MASKED_REWARDS = ("individual", "team")
+MASKED_REWARDS = ("individual", "team", "mixed")
 #: the widest hidden layer of ``actor_net`` / ``critic_net`` / ``encoder_units``
 MAX_UNITS = 65_536
 

@@ -195,8 +195,8 @@ def test_same_seed_same_learning_curve_and_weights_and_resume(tmp_path: Path) ->
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("mappo:\n  encoder: deepsets\n", "encoders there: mlp, candidates"),
-        ("env:\n  reward: difference\n", "individual, team"),
+        ("mappo:\n  encoder: deepsets\n", "encoders there: mlp, candidates, candidates-attention"),
+        ("env:\n  reward: difference\n", "individual, team, mixed"),
         ("env:\n  movers: [0]\n", "movers"),
         ("mappo:\n  critic: values\n", "state, observation"),
     ],
