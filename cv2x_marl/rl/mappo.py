@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 
 from cv2x_marl.checks import is_int
 from cv2x_marl.env.mobility_env import check_copies
@@ -122,6 +123,16 @@ class Mappo:
         self.state_size = int(first.state_space.shape[0])
         torch_seed, self.episode_rngs, self.batch_rng = streams(seed, cfg.copies)
         m = cfg.mappo
+        self.actor: Any
+        self.critic: Any
+        self.discrete = isinstance(first.action_space(self.agents[0]), spaces.Discrete)
+        #: the masked path's list length, reward and critic inputs (:mod:`cv2x_marl.rl.mappo_masked`)
+        self.n_actions, self.team, self.critic_kind = 0, True, "state"
+        if self.discrete:  # masked choices (cv2x/Resource-v0): rl.mappo_masked
+            from cv2x_marl.rl.mappo_masked import build_masked
+
+            build_masked(self, first, torch_seed)
+            return
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(torch_seed)
             self.actor = SharedActor(
@@ -190,6 +201,10 @@ class Mappo:
         ``stop``: a :class:`cv2x_marl.rl.train.StopRequest`; once it holds a signal, the collection is given up at
         the next step and None returned (the random streams have moved on: :meth:`rng_state` taken before the
         call is the state to save)."""
+        if self.discrete:
+            from cv2x_marl.rl.mappo_masked import collect_masked
+
+            return collect_masked(self, stop)
         import torch
         from tensordict import TensorDict
         from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -229,6 +244,10 @@ class Mappo:
 
     def update(self, batch: dict[str, Any]) -> dict[str, float]:
         """GAE and the clipped PPO epochs (module docstring, steps 2-3); the mean losses."""
+        if self.discrete:
+            from cv2x_marl.rl.mappo_masked import update_masked
+
+            return update_masked(self, batch)
         import torch
         from tensordict import TensorDict
         from torchrl.objectives.value.functional import generalized_advantage_estimate
@@ -282,7 +301,8 @@ class Mappo:
         return {k: v / max(count, 1) for k, v in sums.items()}
 
     def act_fn(self) -> Any:
-        """The deterministic actor as a :class:`~cv2x_marl.policies.base.BatchPolicy` function."""
+        """The deterministic actor as a :class:`~cv2x_marl.policies.base.BatchPolicy` function (masked actions: the
+        most probable valid entry per row, int64)."""
         import torch
 
         def act(obs: np.ndarray) -> np.ndarray:
@@ -291,8 +311,28 @@ class Mappo:
 
         return act
 
+    def eval_policy(self) -> Any:
+        """The deterministic actor as a policy, one agent's row at a time (what ``model.pt`` loads as)."""
+        if self.discrete:
+            from cv2x_marl.policies.mappo import MaskedChoicePolicy
+
+            return MaskedChoicePolicy(self.actor, "mappo")
+        return BatchPolicy(self.act_fn(), "mappo")
+
     def model(self) -> dict[str, Any]:
         """What ``model.pt`` holds (plain values and tensors: ``torch.load(weights_only=True)`` reads it)."""
+        if self.discrete:
+            return {
+                "format": MODEL_FORMAT,
+                "version": 1,
+                "env_id": self.cfg.env_id,
+                "actor_kind": "categorical",
+                "actor_kwargs": self.actor.spec(),
+                "actor_state": self.actor.state_dict(),
+                "critic_kind": self.critic_kind,
+                "critic_kwargs": {"n_in": int(self.critic.n_in), "net": list(self.cfg.mappo.critic_net)},
+                "critic_state": self.critic.state_dict(),
+            }
         return {
             "format": MODEL_FORMAT,
             "version": 1,
@@ -443,9 +483,12 @@ def _train_mappo(
         snapshot = run.training_state(iteration, rows, rngs)
         atomic_write(checkpoint_path(run_dir, iteration), lambda tmp: torch.save(snapshot, tmp))
 
+    cpu0 = time.process_time()
     eval_env = eval_env_options(cfg)
     n_ep, e_seed = cfg.eval_episodes, cfg.eval_seed
-    gbmu = evaluate(cfg.env_id, "gbmu", n_ep, e_seed, None, eval_env, progress=False)
+    # the script each learning-curve row is compared with: gbmu moves; a resource choice has its sensing-aware script
+    base = "farthest" if run.discrete else "gbmu"
+    gbmu = evaluate(cfg.env_id, base, n_ep, e_seed, None, eval_env, progress=False)
     t0 = time.perf_counter()
     before, batch = run.rng_state(), None
     with StopRequest() as stop:
@@ -456,9 +499,7 @@ def _train_mappo(
                 break
             losses = run.update(batch)
             if it % cfg.eval_every == 0 or it == iterations:
-                res = evaluate(
-                    cfg.env_id, BatchPolicy(run.act_fn(), "mappo"), n_ep, e_seed, None, eval_env, progress=False
-                )
+                res = evaluate(cfg.env_id, run.eval_policy(), n_ep, e_seed, None, eval_env, progress=False)
                 rows.append(
                     {
                         "iteration": it,
@@ -467,16 +508,18 @@ def _train_mappo(
                         "mappo_mean_utility_gain": res["mean_utility_gain"],
                         "mappo_mean_prr_gain": res["mean_prr_gain"],
                         "mappo_mean_return": res["mean_return"],
-                        "gbmu_mean_utility_gain": gbmu["mean_utility_gain"],
+                        f"{base}_mean_utility_gain": gbmu["mean_utility_gain"],
                         **losses,
                     }
                 )
+                if run.discrete:  # the process's CPU seconds so far (env copies and evaluations included)
+                    rows[-1]["cpu_s"] = time.process_time() - cpu0
                 write_eval_rows(run_dir / "eval.csv", rows)
                 if progress:
                     r = rows[-1]
                     print(
                         f"iteration {it}/{iterations}: team utility gain {r['mappo_mean_utility_gain']:+.1%} "
-                        f"(gbmu {r['gbmu_mean_utility_gain']:+.1%})",
+                        f"({base} {r[f'{base}_mean_utility_gain']:+.1%})",
                         file=sys.stderr,
                     )
             done = it

@@ -39,11 +39,24 @@ from cv2x_marl.yamlcore import load_mapping
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
 ALGOS = ("ppo", "mappo", "utility-map")
-#: the env ids MAPPO trains on: every vehicle moves and the reward is the team's, so one critic value per
-#: env step (on ``state()``) serves every agent
-MAPPO_ENV_IDS = ("cv2x/Cooperative-v0",)
-#: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.policies.encoders`; ``mlp``: the flat observation)
-ENCODERS = ("mlp", "deepsets", "attention")
+#: the env ids MAPPO trains on: on ``cv2x/Cooperative-v0`` every vehicle moves and the reward is the team's, so one
+#: critic value per env step (on ``state()``) serves every agent; on ``cv2x/Resource-v0`` every vehicle that reselects
+#: picks an entry of its candidate list (masked ``Discrete`` actions), each rewarded with its own utility (or the
+#: team's)
+MAPPO_ENV_IDS = ("cv2x/Cooperative-v0", "cv2x/Resource-v0")
+#: the env ids of masked discrete actions (:class:`cv2x_marl.policies.mappo_nets.MaskedActor`)
+MASKED_ENV_IDS = ("cv2x/Resource-v0",)
+#: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.policies.encoders`; ``mlp``: the flat observation;
+#: ``candidates``: the masked actor's scorer shared over the candidate list)
+ENCODERS = ("mlp", "deepsets", "attention", "candidates", "candidates-attention")
+#: the encoders of each action kind: the Gaussian actor (Cooperative-v0) and the masked one (Resource-v0)
+GAUSSIAN_ENCODERS = ("mlp", "deepsets", "attention")
+MASKED_ENCODERS = ("mlp", "candidates", "candidates-attention")
+#: ``mappo.critic``: ``state`` (MAPPO: ``state()``, with individual rewards followed by the agent's observation) or
+#: ``observation`` (independent PPO with parameter sharing: each agent's value from its own observation)
+CRITICS = ("state", "observation")
+#: the rewards a masked run may train on (``env.reward``; the env's default is ``individual``)
+MASKED_REWARDS = ("individual", "team", "mixed")
 #: the widest hidden layer of ``actor_net`` / ``critic_net`` / ``encoder_units``
 MAX_UNITS = 65_536
 
@@ -97,9 +110,22 @@ class MappoSettings:
     encoder: str = "deepsets"
     #: d of :class:`~cv2x_marl.policies.encoders.NeighbourEncoder` (features 3 d)
     encoder_units: int = 64
+    #: what the critic reads (:data:`CRITICS`); ``observation`` only with masked actions (cv2x/Resource-v0)
+    critic: str = "state"
+    #: masked actions: the weight of the observation-seeded Gumbel noise in the deterministic choice (0: the plain
+    #: argmax over the valid entries; :class:`~cv2x_marl.policies.mappo_nets.MaskedActor`)
+    dither: float = 0.0
 
     def __post_init__(self) -> None:
-        check_reals(self, "mappo", {**PPO_REALS, "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]")})
+        check_reals(
+            self,
+            "mappo",
+            {
+                **PPO_REALS,
+                "log_std_init": (lambda v: -20 <= v <= 2, "a number in [-20, 2]"),
+                "dither": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
+            },
+        )
         for name in ("n_epochs", "minibatch_steps", "encoder_units"):
             object.__setattr__(self, name, count_at_least(f"mappo.{name}", getattr(self, name)))
         if self.encoder_units > MAX_UNITS:
@@ -108,6 +134,8 @@ class MappoSettings:
             object.__setattr__(self, name, hidden_layers(f"mappo.{name}", getattr(self, name)))
         if not isinstance(self.encoder, str) or self.encoder not in ENCODERS:
             raise TrainError(f"mappo.encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}")
+        if not isinstance(self.critic, str) or self.critic not in CRITICS:
+            raise TrainError(f"mappo.critic must be one of {', '.join(CRITICS)}, got {self.critic!r}")
 
 
 @dataclass(frozen=True)
@@ -143,14 +171,40 @@ class MappoConfig:
             raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
         object.__setattr__(self, "eval_seed", count_at_least("train.eval_seed", self.eval_seed, low=0))
         check_pooled_env(self.env_id, self.env, "MAPPO")
-        for key in ("reward", "movers"):  # the critic's one value per step needs the team reward and every mover
+        masked = self.env_id in MASKED_ENV_IDS
+        # the critic's one value per step needs the team reward and every mover (Cooperative-v0); a masked run
+        # (Resource-v0) has per-agent values and may take the team reward instead of the individual one
+        for key in ("movers",) if masked else ("reward", "movers"):
             if key in self.env:
                 raise TrainError(f"train.env.{key}: MAPPO keeps {self.env_id}'s own {key} (leave the key out)")
+        if masked and self.env.get("reward", "individual") not in MASKED_REWARDS:
+            raise TrainError(
+                f"train.env.reward must be one of {', '.join(MASKED_REWARDS)} on {self.env_id}, "
+                f"got {self.env['reward']!r}"
+            )
+        allowed = MASKED_ENCODERS if masked else GAUSSIAN_ENCODERS
+        if self.mappo.encoder not in allowed:
+            raise TrainError(
+                f"mappo.encoder {self.mappo.encoder!r} does not act on {self.env_id}; "
+                f"encoders there: {', '.join(allowed)}"
+            )
+        if not masked and self.mappo.dither != 0:
+            raise TrainError(f"mappo.dither is for the masked choices of {', '.join(MASKED_ENV_IDS)} (leave it out)")
+        if not masked and self.mappo.critic != "state":
+            raise TrainError(
+                f"mappo.critic {self.mappo.critic!r}: {self.env_id} trains with the critic on state() (the team "
+                f"reward); critic: observation is for {', '.join(MASKED_ENV_IDS)}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["mappo"]["actor_net"] = list(self.mappo.actor_net)
         d["mappo"]["critic_net"] = list(self.mappo.critic_net)
+        # the defaults of the masked path's keys are left out: run folders written before them still --resume
+        if self.mappo.critic == "state":
+            del d["mappo"]["critic"]
+        if self.mappo.dither == 0:
+            del d["mappo"]["dither"]
         return {"algo": d.pop("algo"), **d}
 
 
@@ -179,5 +233,10 @@ def load_mappo_config(path: Path | None, env_id: str | None = None, copies: int 
     data, raw, env = read_sections(
         path, ("seed", "timesteps"), MappoConfig, "MAPPO config", "mappo", MappoSettings, "MAPPO"
     )
-    cfg = MappoConfig(**{**data, "env": {**MappoConfig().env, **env}, "mappo": MappoSettings(**raw)})
-    return with_cli_values(cfg, env_id, copies)
+    target = env_id if env_id is not None else data.get("env_id", MappoConfig.env_id)
+    # the env arguments' defaults: Cooperative-v0's moves (max_step_m) mean nothing to a resource choice
+    defaults = {"max_cycles": 100, "start_pool": 256} if target in MASKED_ENV_IDS else MappoConfig().env
+    if env_id is not None:
+        data["env_id"] = env_id
+    cfg = MappoConfig(**{**data, "env": {**defaults, **env}, "mappo": MappoSettings(**raw)})
+    return with_cli_values(cfg, None, copies)

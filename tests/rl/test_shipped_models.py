@@ -1,6 +1,7 @@
-"""The shipped models (agents/models/<task>_seed{0..4}/ and the utility maps): five training seeds per learner, each
-with the configuration and env options that rebuild its env, trained within 15 CPU-minutes, and reproducing its
-rows of the published benchmark run (docs/benchmark/learners/benchmark.csv) through the benchmark's own job."""
+"""The shipped models (agents/models/<task>_seed{0..4}/, the utility maps and the resource learner): five training
+seeds per learner, each with the configuration and env options that rebuild its env, trained within 15 CPU-minutes,
+and reproducing its rows of the published benchmark run (docs/benchmark/learners/benchmark.csv, learners-map/ and
+resource-learners/) through the benchmark's own job."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ MODELS = ROOT / "agents" / "models"
 TABLE = ROOT / "docs" / "benchmark" / "learners" / "benchmark.csv"
 #: the learned utility maps' run (docs/benchmark.md, "A learner that plans")
 MAP_TABLE = ROOT / "docs" / "benchmark" / "learners-map" / "benchmark.csv"
+#: the resource learners' run (docs/rl.md, "Resource choice"), next to the task's scripted rows
+RESOURCE_TABLE = ROOT / "docs" / "benchmark" / "resource-learners" / "benchmark.csv"
 #: learner -> (folder prefix, env id the models were trained on, model file, benchmark label, config, the env options
 #: that shape observations and actions beyond the id's defaults); the benchmark tasks' learners by task name
 SHIPPED = {
@@ -33,7 +36,10 @@ SHIPPED = {
         {"speed_command": "change"},
     ),
     "singlemover-map": ("singlemover-map", "cv2x/SingleMover-v3", "model.npz", "map", "map_single_v3.yaml", {}),
+    "resource-ippo": ("resource-ippo", "cv2x/Resource-v0", "model.pt", "ippo", "ippo_resource.yaml", {}),
 }
+#: the table each learner's rows were published in (default :data:`TABLE`)
+TABLES = {"singlemover-map": MAP_TABLE, "resource-ippo": RESOURCE_TABLE}
 #: the task of each learner of :data:`SHIPPED`
 TASK_OF = {name: name.split("-")[0] for name in SHIPPED}
 #: issue 28's training budget per seed on a 2-core machine
@@ -79,13 +85,14 @@ def test_a_shipped_model_reproduces_its_published_benchmark_rows(learner: str, m
         pytest.importorskip("stable_baselines3")
     elif model.endswith(".pt"):
         pytest.importorskip("torch")
-    with (MAP_TABLE if model.endswith(".npz") else TABLE).open(newline="") as fh:
+    with TABLES.get(learner, TABLE).open(newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["task"] == task and r["method"] == label and r["run"] == "0"]
     rows = sorted(rows, key=lambda r: int(r["episode"]))[:2]
     assert rows[0]["policy"] == f"ppo:agents/models/{prefix}_seed0/{model}" and rows[0]["env_id"] == env_id
     # the benchmark's own planning: the env id from the model's train_config.json, the task's options
     models = benchmark.parse_models([f"{task}/{label}={rows[0]['policy']}"], tasks.TASKS)
-    jobs = benchmark.plan_jobs(tasks.TASKS, [task], ["static"], models, episodes=2)
+    reference = tasks.TASKS[task].methods[:1]  # the task's reference method (static; sps on resource)
+    jobs = benchmark.plan_jobs(tasks.TASKS, [task], reference, models, episodes=2)
     (job,) = [j for j in jobs if j["method"] == label]
     assert job["env_id"] == env_id and job["seeds"] == [int(r["seed"]) for r in rows]
     got = benchmark.run_job(job)
