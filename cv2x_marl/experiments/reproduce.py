@@ -49,6 +49,7 @@ BENCHMARK_MODELS = {
     "singlemover": "singlemover-v3_seed*/model.zip",
     "singlemover/map": "singlemover-map_seed*/model.npz",
     "cooperative": "cooperative_seed*/model.pt",
+    "resource/ippo": "resource-ippo_seed*/model.pt",
 }
 
 

@@ -55,15 +55,13 @@ from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import BatchPolicy
 from cv2x_marl.policies.mappo import MODEL_FORMAT
 from cv2x_marl.rl.errors import TrainError
-from cv2x_marl.rl.mappo_config import MappoConfig, load_mappo_config
+from cv2x_marl.rl.mappo_config import GROUP, MappoConfig, load_mappo_config
 from cv2x_marl.rl.ppo_step import LOSS_KEYS, ppo_minibatch_step
 from cv2x_marl.rl.train import StopRequest, TrainingInterrupted, check_resume_config, run_settings, write_eval_rows
 from cv2x_marl.runs import RunFolder
 
 #: the named random streams of a run, spawned from ``SeedSequence(seed)`` in this order
 STREAMS = ("torch", "episodes", "minibatches")
-#: the TensorDict group of the agents
-GROUP = "agents"
 #: the ``format`` of a MAPPO checkpoint (``checkpoints/mappo_<iteration>.pt``)
 CHECKPOINT_FORMAT = "cv2x_marl.mappo_checkpoint"
 

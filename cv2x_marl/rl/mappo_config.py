@@ -37,6 +37,9 @@ from cv2x_marl.rl.train_config import (
 )
 from cv2x_marl.yamlcore import load_mapping
 
+#: the TensorDict group of the agents (MAPPO's collection and update, :mod:`cv2x_marl.rl.mappo`)
+GROUP = "agents"
+
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
 ALGOS = ("ppo", "mappo", "utility-map")
 #: the env ids MAPPO trains on: on ``cv2x/Cooperative-v0`` every vehicle moves and the reward is the team's, so one

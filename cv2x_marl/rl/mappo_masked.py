@@ -26,7 +26,7 @@ The random streams, checkpoints, resume and the run folder are :mod:`cv2x_marl.r
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -34,10 +34,11 @@ from tensordict import TensorDict
 from torch import nn
 
 from cv2x_marl.rl.errors import TrainError
+from cv2x_marl.rl.mappo_config import GROUP
 from cv2x_marl.rl.ppo_step import LOSS_KEYS, ppo_minibatch_step
 
-if TYPE_CHECKING:
-    from cv2x_marl.rl.mappo import Mappo
+#: a :class:`cv2x_marl.rl.mappo.Mappo` run (not imported: it imports this module for its discrete path)
+Mappo = Any
 
 #: the critic of each ``mappo.critic`` and reward: its inputs (``critic_kind`` of ``model.pt``)
 CRITIC_KINDS = ("observation", "state", "state+observation")
@@ -59,7 +60,6 @@ def build_masked(run: Mappo, first: Any, torch_seed: int) -> None:
     from torchrl.objectives import ClipPPOLoss
 
     from cv2x_marl.policies.mappo_nets import MaskedActor, ObservationCritic, StateCritic, candidate_spec
-    from cv2x_marl.rl.mappo import GROUP
 
     cfg, m = run.cfg, run.cfg.mappo
     if not callable(getattr(first, "action_masks", None)):
@@ -190,8 +190,6 @@ def collect_masked(run: Mappo, stop: Any = None) -> dict[str, Any] | None:
     states [T + 1, ...]: the last ones bootstrap the time limit); None when ``stop`` holds a signal."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from cv2x_marl.rl.mappo import GROUP
-
     k_, t_, n_, a_ = run.cfg.copies, run.steps, run.n_agents, run.n_actions
     obs = np.empty((t_ + 1, k_, n_, run.obs_size), np.float32)
     state = np.empty((t_ + 1, k_, run.state_size), np.float32)
@@ -281,7 +279,6 @@ def advantages(run: Mappo, batch: dict[str, Any]) -> tuple[Any, Any, Any]:
 
 def update_masked(run: Mappo, batch: dict[str, Any]) -> dict[str, float]:
     """GAE and the PPO epochs of the masked path (module docstring); the mean losses."""
-    from cv2x_marl.rl.mappo import GROUP
 
     m = run.cfg.mappo
     t_, k_, n_ = batch["reward"].shape
