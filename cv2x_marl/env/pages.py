@@ -223,6 +223,24 @@ def _arguments_section(spec: EnvSpec, env: MobilityEnv) -> list[str]:
     return lines
 
 
+def _example(env_id: str, policy: str, comment: str, *loop: str) -> list[str]:
+    """The page's code block: an episode of the scripted ``policy`` on ``env_id`` (``loop``: lines before the step)."""
+    return [
+        "```python",
+        "from cv2x_marl.env import make_parallel_env",
+        "from cv2x_marl.policies.registry import make_policy",
+        "",
+        f'env = make_parallel_env("{env_id}")',
+        f'policy = make_policy("{policy}", env)  # {comment}',
+        "obs, infos = env.reset(seed=0)",
+        "policy.reset(seed=0)",
+        "while env.agents:",
+        *loop,
+        "    obs, rewards, terms, truncs, infos = env.step(policy.act(obs))",
+        "```",
+    ]
+
+
 def _policies_section(spec: EnvSpec) -> list[str]:
     task = next((t for t in TASKS.values() if t.env_id == spec.env_id), None)
     variant = VARIANTS.get(spec.env_id)
@@ -261,18 +279,12 @@ def _policies_section(spec: EnvSpec) -> list[str]:
             "against `sps` (the standard's own choice) on the same episode.",
             f"Refused: {refused}.",
             "",
-            "```python",
-            "from cv2x_marl.env import make_parallel_env",
-            "from cv2x_marl.policies.registry import make_policy",
-            "",
-            f'env = make_parallel_env("{spec.env_id}")',
-            'policy = make_policy("farthest", env)  # a sensing-aware script on the public API',
-            "obs, infos = env.reset(seed=0)",
-            "policy.reset(seed=0)",
-            "while env.agents:",
-            "    masks = env.action_masks()  # [N, 20]: the valid entries of each deciding vehicle's list",
-            "    obs, rewards, terms, truncs, infos = env.step(policy.act(obs))",
-            "```",
+            *_example(
+                spec.env_id,
+                "farthest",
+                "a sensing-aware script on the public API",
+                "    masks = env.action_masks()  # [N, 20]: the valid entries of each deciding vehicle's list",
+            ),
             "",
             f"Scored on the task's held-out episodes: `cv2x-marl evaluate --env {spec.env_id} --policy farthest "
             f"--seeds heldout`; every method at once: `cv2x-marl benchmark --tasks {task.name} --out runs/bench` "
@@ -283,17 +295,7 @@ def _policies_section(spec: EnvSpec) -> list[str]:
         f"Refused: {refused}.",
         *channel,
         "",
-        "```python",
-        "from cv2x_marl.env import make_parallel_env",
-        "from cv2x_marl.policies.registry import make_policy",
-        "",
-        f'env = make_parallel_env("{spec.env_id}")',
-        'policy = make_policy("gbmu", env)  # a scripted expert on the public API',
-        "obs, infos = env.reset(seed=0)",
-        "policy.reset(seed=0)",
-        "while env.agents:",
-        "    obs, rewards, terms, truncs, infos = env.step(policy.act(obs))",
-        "```",
+        *_example(spec.env_id, "gbmu", "a scripted expert on the public API"),
         "",
         f"Scored on the task's held-out episodes against its ceiling: `cv2x-marl evaluate --env {spec.env_id} "
         "--policy gbmu --seeds heldout --vs-optimum`; every method at once: `cv2x-marl benchmark --tasks "

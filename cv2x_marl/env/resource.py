@@ -131,6 +131,13 @@ def decode_choices(
     """
     step_core.check_action_agents(actions, live, agents)
     out = np.zeros(len(possible_agents), dtype=np.int64)
+    try:  # the usual case: one integer per agent, all in the space
+        arr = np.asarray(list(actions.values()))
+    except ValueError:  # ragged: the loop below names the culprit
+        arr = np.empty(0)
+    if arr.shape == (len(actions),) and arr.dtype.kind in "iu" and ((arr >= 0) & (arr < k)).all():
+        out[[agent_index[a] for a in actions]] = arr
+        return out
     for agent, value in actions.items():
         arr = np.asarray(value)
         if arr.size != 1 or arr.dtype.kind not in "iu":
@@ -220,10 +227,9 @@ def candidate_features(
     n_sub = cfg.n_subchannels
     rri = sched.rri
     window_end = cfg.t1_subframes + cfg.selection_window_subframes - 1
-    for a, i in enumerate(rows):  # deciders only: a handful per period
+    for a in np.flatnonzero(pending.n_valid[rows] > 0):  # the deciders: a handful per period
+        i = rows[a]
         nv = int(pending.n_valid[i])
-        if nv == 0:
-            continue
         res = pending.resources[i, :nv]
         slot = res // n_sub
         block = out[a]
