@@ -40,7 +40,8 @@ COMMANDS: dict[str, str] = {
     "gbmu": "GBMU mobility studies (Fig. 5-10) with greedy and oracle references",
     "evaluate": "evaluate a mover policy on the env (same episodes for the same seed)",
     "benchmark": "every method of every task on its held-out episodes: table and figure",
-    "train": "train PPO movers (SB3, parameter sharing), MAPPO (algo: mappo) or a utility map (algo: utility-map)",
+    "train": "train PPO movers (SB3), MAPPO (algo: mappo), a utility map (algo: utility-map) or a clone of "
+    "sensing (algo: imitation)",
     "sweep": "PPO training sweep over seeds and a grid, as Ray Tune trials",
     "reproduce": "dataset, fit, GBMU study, movers vs baselines, REPORT.md",
     "baselines": "every baseline file of a folder on the same held-out episodes",

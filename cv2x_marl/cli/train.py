@@ -1,5 +1,5 @@
 """``cv2x-marl train``: train PPO movers (SB3, parameter sharing), MAPPO (TorchRL, algo: mappo) or a learned
-utility map (algo: utility-map)."""
+utility map (algo: utility-map) or a clone of the sensing planner (algo: imitation)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,9 @@ from cv2x_marl.cli.common import (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", default=None, choices=ENV_CHOICES)
     p.add_argument(
-        "--algo", default=None, help="ppo | mappo | utility-map (default: the --config file's algo, else ppo)"
+        "--algo",
+        default=None,
+        help="ppo | mappo | utility-map | imitation (default: the --config file's algo, else ppo)",
     )
     p.add_argument(
         "--timesteps",
@@ -52,6 +54,10 @@ def run(args: argparse.Namespace) -> int:
         from cv2x_marl.rl.utility_map import cli_train as map_train
 
         return map_train(args, DEFAULT_TIMESTEPS, print_json)
+    if algo == "imitation":  # docs/rl.md, "Imitation of sensing"
+        from cv2x_marl.rl.imitation import cli_train as imitation_train
+
+        return imitation_train(args, DEFAULT_TIMESTEPS, print_json)
     cfg = load_train_config(args.config, env_id=args.env, copies=args.copies)
     from_file = run_settings(args.config)  # a run folder's train_config.json names its seed and length
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", DEFAULT_TIMESTEPS)

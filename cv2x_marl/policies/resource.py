@@ -159,15 +159,26 @@ class ResourceCeiling:
 
     It is the best *found* at each step (exact per step with few deciders), not an optimum over the episode, and it
     does not know the future SPS draws (other vehicles' later reselections) or the fading.
+
+    With ``joint=False`` (a diagnostic, ``benchmarks/resource_coordination.py``) every decider instead maximises the
+    same objective alone, the other deciders on the resources the standard drew for them: the same knowledge
+    without the coordination between vehicles that reselect in the same period.
+
+    Args:
+        env: a ``cv2x/Resource-v0`` env (read, never stepped).
+        sweeps: coordinate-ascent sweeps beyond ``exhaustive`` combinations.
+        exhaustive: the most combinations of the deciders' entries tried one by one.
+        joint: choose the deciders' entries together (the ceiling) or each alone (the diagnostic).
     """
 
     name = "optimum"
 
-    def __init__(self, env: MobilityEnv, sweeps: int = 3, exhaustive: int = 400) -> None:
+    def __init__(self, env: MobilityEnv, sweeps: int = 3, exhaustive: int = 400, joint: bool = True) -> None:
         check_resource_env(env, "optimum")
         self.env = env
         self.sweeps = sweeps
         self.exhaustive = exhaustive
+        self.joint = bool(joint)
 
     def reset(self, seed: int | None = None) -> None:
         return None
@@ -194,6 +205,17 @@ class ResourceCeiling:
         def score(res: NDArray[np.int64]) -> float:
             return team_objective(expected_success(mean_mw, res, n_sub, noise, curve), target, p_min)
 
+        if not self.joint:  # each decider alone, the others on the standard's draw
+            drawn = resource.copy()
+            drawn[deciders] = pending.standard[deciders]
+            for i in deciders:
+                alone, best = drawn.copy(), -np.inf
+                for entry in range(int(pending.n_valid[i])):
+                    alone[i] = pending.resources[i, entry]
+                    value = score(alone)
+                    if value > best + 1e-12:
+                        best, out[i] = value, entry
+            return out
         sizes = [int(pending.n_valid[i]) for i in deciders]
         if math.prod(sizes) <= self.exhaustive:
             best = -np.inf

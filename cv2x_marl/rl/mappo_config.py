@@ -41,7 +41,7 @@ from cv2x_marl.yamlcore import load_mapping
 GROUP = "agents"
 
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
-ALGOS = ("ppo", "mappo", "utility-map")
+ALGOS = ("ppo", "mappo", "utility-map", "imitation")
 #: the env ids MAPPO trains on: on ``cv2x/Cooperative-v0`` every vehicle moves and the reward is the team's, so one
 #: critic value per env step (on ``state()``) serves every agent; on ``cv2x/Resource-v0`` every vehicle that reselects
 #: picks an entry of its candidate list (masked ``Discrete`` actions), each rewarded with its own utility (or the

@@ -378,7 +378,7 @@ class _MapRun:
             bar.close()
         umap = self.current_map()
         umap.save(run_dir / "model.npz")
-        _write_curve(run_dir, rows)
+        write_curve(run_dir, rows, "learned utility map")
         last = rows[-1]
         return {
             "algo": "utility-map",
@@ -401,7 +401,9 @@ def _progress(total: int, enabled: bool) -> Any:
     return tqdm(total=total, desc="utility map", unit="it")
 
 
-def _write_curve(run_dir: Path, rows: list[dict[str, Any]]) -> None:
+def write_curve(run_dir: Path, rows: list[dict[str, Any]], title: str) -> None:
+    """``curve.csv`` (one row per iteration) and ``curve.png`` (utility gain against CPU seconds, when matplotlib
+    is installed) of a utility-map or imitation run."""
     import csv
 
     with open(run_dir / "curve.csv", "w", newline="") as f:
@@ -411,7 +413,7 @@ def _write_curve(run_dir: Path, rows: list[dict[str, Any]]) -> None:
     try:
         from cv2x_marl import plotting
 
-        plotting.plot_gain_vs_cpu({"run": rows}, run_dir / "curve.png", "learned utility map")
+        plotting.plot_gain_vs_cpu({"run": rows}, run_dir / "curve.png", title)
     except ImportError:  # the figure needs matplotlib; the CSV is the data
         return
 

@@ -374,3 +374,42 @@ def test_ceiling_is_the_brute_force_best_with_one_or_two_deciders():
             checked += 1
         obs, *_ = env.step(ceiling.act(obs))
     assert checked == 4
+
+
+def test_independent_ceiling_is_each_deciders_best_alone():
+    """``ResourceCeiling(joint=False)`` (the coordination diagnostic): at steps with two or three deciders each one's
+    entry reaches the best objective over its own entries, the other deciders on the standard's draw (link by link);
+    with one decider it is the ceiling's choice."""
+    from cv2x_marl.env.traffic_measurement import period_rx_dbm
+    from cv2x_marl.policies.resource import ResourceCeiling
+
+    env = make_parallel_env(ENV_ID, max_cycles=40)
+    alone, joint = ResourceCeiling(env, joint=False), ResourceCeiling(env)
+    obs, _ = env.reset(seed=TASKS["resource"].train_seeds[6])
+    checked = single = 0
+    while env.agents:
+        p = env.pending
+        deciders = np.flatnonzero(p.decides)
+        choice = alone.choices()
+        if deciders.size == 1:
+            assert choice[deciders[0]] == joint.choices()[deciders[0]]
+            single += 1
+        elif 2 <= deciders.size <= 3 and checked < 3:
+            sim = env.sim
+            rx = period_rx_dbm(sim.last_geometry, env.n)
+            mw = np.where(np.isfinite(rx), 10 ** (rx / 10), 0.0)
+            drawn = sim.scheduler.resource.copy()
+            drawn[deciders] = p.standard[deciders]
+            args = (2, sim.scheduler.noise_mw, sim.chunks.curve, env.p_min)
+            for i in deciders:
+                values = []
+                for entry in range(int(p.n_valid[i])):
+                    res = drawn.copy()
+                    res[i] = p.resources[i, entry]
+                    values.append(_objective_by_hand(mw, res, *args))
+                res = drawn.copy()
+                res[i] = p.resources[i, choice[i]]
+                assert _objective_by_hand(mw, res, *args) == pytest.approx(max(values), rel=1e-9, abs=1e-12)
+            checked += 1
+        obs, *_ = env.step(alone.act(obs))
+    assert checked == 3 and single >= 1
