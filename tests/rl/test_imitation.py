@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+pytest.importorskip("torch")
+
+import torch
 
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.imitation import (
