@@ -125,20 +125,52 @@ def test_model_loads_as_ppo_path(tmp_path: Path) -> None:
         run.close()
 
 
-def test_quick_mode_beats_random_and_gbmu(tmp_path: Path) -> None:
-    """DAgger, 4 rounds of 8 episodes (3,200 labelled agent-steps, one expert round) and four training-list
-    episodes after the pool: the clone's mean utility gain is above gbmu's and random's on the same episodes."""
+def test_quick_mode_imitates_the_expert_and_beats_random(tmp_path: Path) -> None:
+    """DAgger, 4 rounds of 16 episodes (6,400 labelled agent-steps, one expert round, about 15 CPU-s):
+
+    * on fresh episodes the expert drives (another seed's two copies), the clone's action points the expert's way
+      more than an untrained network's (mean cosine over the steps where the expert moves; measured 0.25 against
+      -0.06; asserted > 0.15 and 0.15 above the untrained one);
+    * on 8 training-list episodes after the pool its IQM utility gain is above `random`'s by 10 points.
+
+    Beating `gbmu` is not asserted: imitation of `sensing` reaches gbmu's level, not reliably above it (at 38,400
+    labels, held out: +28.2 % [+17.4, +40.2] against gbmu's +23.4 % [+13.4, +33.8], docs/benchmark.md)."""
     from cv2x_marl.env.seeds import training_pool
     from cv2x_marl.experiments.evaluate import evaluate
 
     env = {"max_cycles": 100, "max_step_m": 5.0, "start_pool": 64}
     settings = ImitationSettings(expert_iterations=1, epochs=4)
-    cfg = ImitationConfig(copies=8, env=env, imitation=settings, eval_every=100, eval_episodes=1)
-    train_imitation(cfg, 4 * 8 * 100, 0, tmp_path / "run", progress=False)
-    seeds = training_pool(64 + 8)[68:72]
-    policy = f"ppo:{tmp_path / 'run' / 'model.pt'}"
+    cfg = ImitationConfig(copies=16, env=env, imitation=settings, eval_every=100, eval_episodes=1)
+    train_imitation(cfg, 4 * 16 * 100, 0, tmp_path / "run", progress=False)
+
+    check = _ImitationRun(dataclasses_replace(cfg, copies=2), 1)
+    try:
+        untrained = check.act
+        check.collect(expert_drives=True)
+        obs, labels = np.concatenate(check.obs), np.concatenate(check.labels)
+        moving = np.linalg.norm(labels, axis=1) > 0.1
+
+        def cosine(actions: np.ndarray) -> float:
+            a, b = actions[moving], labels[moving]
+            return float(np.mean(np.sum(a * b, 1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) + 1e-9)))
+
+        before = cosine(untrained(obs))
+        state = torch.load(tmp_path / "run" / "model.pt", weights_only=True)
+        check.net.load_state_dict(state["net_state"])
+        after = cosine(check.act(obs))
+    finally:
+        check.close()
+    assert moving.sum() > 20 and after > 0.15 and after > before + 0.15, (before, after)
+
+    seeds = training_pool(64 + 16)[64:72]
     gains = {
-        name: evaluate("cv2x/SingleMover-v3", p, 4, 0, None, env, progress=False, seeds=seeds)["mean_utility_gain"]
-        for name, p in (("clone", policy), ("gbmu", "gbmu"), ("random", "random"))
+        name: evaluate("cv2x/SingleMover-v3", p, 8, 0, None, env, progress=False, seeds=seeds)["iqm_utility_gain"]
+        for name, p in (("clone", f"ppo:{tmp_path / 'run' / 'model.pt'}"), ("random", "random"))
     }
-    assert gains["clone"] > gains["gbmu"] and gains["clone"] > gains["random"], gains
+    assert gains["clone"] > gains["random"] + 0.10, gains
+
+
+def dataclasses_replace(cfg: ImitationConfig, **changes: object) -> ImitationConfig:
+    import dataclasses
+
+    return dataclasses.replace(cfg, **changes)  # type: ignore[arg-type]
