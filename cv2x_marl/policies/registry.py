@@ -39,7 +39,12 @@ from cv2x_marl.policies.planner import PlannerPolicy
 from cv2x_marl.policies.ppo import PpoPolicy
 from cv2x_marl.policies.resource import RESOURCE_POLICIES, make_resource_policy
 from cv2x_marl.policies.scripted import GbmuPolicy, OraclePolicy
-from cv2x_marl.policies.sequential import SequentialBestResponsePolicy, SequentialSensingPolicy, SequentialTeamPolicy
+from cv2x_marl.policies.sequential import (
+    InTurns,
+    SequentialBestResponsePolicy,
+    SequentialSensingPolicy,
+    SequentialTeamPolicy,
+)
 from cv2x_marl.policies.torch_ppo import load_pt_policy
 from cv2x_marl.policies.utility_map import UtilityMapPolicy, is_map_file
 from cv2x_marl.regression.model import PAPER_MODEL, load_model
@@ -169,5 +174,8 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
             )
         if is_map_file(path):
             return UtilityMapPolicy(path, env)
-        return load_pt_policy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
+        learned = load_pt_policy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
+        if getattr(getattr(env, "options", None), "decision_order", "simultaneous") == "subframe":
+            return InTurns(learned, env)  # Cooperative-v1: it acts at its turns
+        return learned
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

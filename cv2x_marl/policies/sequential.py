@@ -26,7 +26,7 @@ heard); the two give the same actions (tested).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,8 +40,11 @@ from cv2x_marl.env.planning import (
     reachable_set,
 )
 from cv2x_marl.env.team_search import team_move
-from cv2x_marl.env.turns import announced_positions, subframes
+from cv2x_marl.env.turns import announced_positions, decide_in_turns, subframes
 from cv2x_marl.policies.base import Actions, Observations
+
+if TYPE_CHECKING:
+    from cv2x_marl.env.mobility_env import MobilityEnv
 
 FloatArray = NDArray[np.float64]
 
@@ -176,3 +179,47 @@ class SequentialTeamPolicy(SequentialPolicy):
 
     def plan(self, i: int, heard_m: FloatArray) -> FloatArray:
         return team_move(self.env, i, heard_m, normalise=bool(self.env.normalise_reward))
+
+
+class InTurns:
+    """A learned policy acting at its turns on a ``decision_order="subframe"`` env (``cv2x/Cooperative-v1``).
+
+    Each period the vehicles of one subframe decide together, on their observations at their turn (the moves
+    announced in the earlier subframes, :func:`~cv2x_marl.env.turns.decide_in_turns`); the wrapped policy acts on
+    those observations as on any others (one agent's row at a time for a learned policy). :func:`make_policy` wraps
+    every ``ppo:PATH`` model loaded for such an env: without the wrapper the parallel API's actions are all taken on
+    the period's first observation, and the channel is not used.
+
+    Args:
+        policy: the wrapped policy (its ``act`` takes a dict of observations).
+        env: the turn-order env it acts in (read, never stepped).
+    """
+
+    def __init__(self, policy: Any, env: MobilityEnv) -> None:
+        if env.options.decision_order != "subframe":
+            raise ValueError(
+                f"InTurns needs an env with decision_order='subframe' (cv2x/Cooperative-v1), got "
+                f"{env.options.decision_order!r}"
+            )
+        self.policy = policy
+        self.env = env
+        self.name = getattr(policy, "name", "learned")
+
+    def reset(self, seed: int | None = None) -> None:
+        self.policy.reset(seed)
+
+    def act(self, observations: Observations) -> Actions:
+        env = self.env
+        names = env.possible_agents
+
+        def decide(rows: NDArray[np.int64], obs: NDArray[np.float32]) -> NDArray[np.float64]:
+            live = [(k, names[r]) for k, r in enumerate(rows) if names[r] in observations]
+            out = np.zeros((rows.size, 2))
+            if live:
+                acts = self.policy.act({a: obs[k] for k, a in live})
+                for k, a in live:
+                    out[k] = np.asarray(acts[a], dtype=np.float64)
+            return out
+
+        actions, _ = decide_in_turns(env, decide)
+        return {a: actions[env.agent_index[a]].astype(np.float32) for a in observations}

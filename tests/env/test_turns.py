@@ -343,3 +343,28 @@ def test_sequential_team_without_announcements_is_all_at_once_team_re_planning()
     want = np.clip((team_moves(env) - env.positions_m) / env.max_step_m, -1, 1)
     got = deaf.act(obs)
     np.testing.assert_array_equal(np.array([got[a] for a in env.possible_agents]), want.astype(np.float32))
+
+
+def test_a_learned_policy_on_cooperative_v1_acts_at_its_turns() -> None:
+    """``make_policy("ppo:PATH", env)`` on a turn-order env wraps the model in ``InTurns``: through the parallel API
+    it makes the episode the same model makes acting agent by agent at its AEC turns (bit for bit); on
+    Cooperative-v0 the model is not wrapped."""
+    from cv2x_marl.policies.sequential import InTurns
+
+    path = "agents/models/cooperative_seed0/model.pt"
+    kw = {"overrides": ["sim.warmup_subframes=200"], "max_cycles": 4}  # the task's 21 vehicles: the model's size
+    par = make_parallel_env("cv2x/Cooperative-v1", **kw)
+    policy = make_policy(f"ppo:{path}", par)
+    assert isinstance(policy, InTurns)
+    assert not isinstance(make_policy(f"ppo:{path}", make_parallel_env("cv2x/Cooperative-v0")), InTurns)
+    obs, _ = par.reset(seed=5)
+    while par.agents:
+        obs, *_ = par.step(policy.act(obs))
+    aec = make_aec_env("cv2x/Cooperative-v1", **kw)
+    aec.reset(seed=5)
+    inner = policy.policy
+    for agent in aec.agent_iter():
+        o, _, term, trunc, _ = aec.last()
+        aec.step(None if term or trunc else inner.act({agent: o})[agent])
+    np.testing.assert_array_equal(np.array(par.tracks), np.array(aec.unwrapped.tracks))
+    assert not np.array_equal(par.tracks[0], par.tracks[-1])
