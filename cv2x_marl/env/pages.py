@@ -269,7 +269,8 @@ def _policies_section(spec: EnvSpec) -> list[str]:
             "their announced moves; privileged) and `sequential-sensing` (the same from the vehicle's measured "
             "estimate, every sensing window), `sequential-team` (every period, the best reachable position for the "
             "team objective; privileged). A learner acts at its turn through the AEC API, or batched with "
-            "`cv2x_marl.env.turns.decide_in_turns`.",
+            "`cv2x_marl.env.turns.decide_in_turns`; a model loaded with `--policy ppo:PATH` on this id acts at its "
+            "turns (`cv2x_marl.policies.sequential.InTurns`).",
         ]
     if VERSION_DEFAULTS[spec.defaults].get("traffic_action") == "resource":
         return [

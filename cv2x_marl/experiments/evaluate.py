@@ -268,7 +268,8 @@ def _build(r: _Resolved, env: MobilityEnv) -> Policy:
         return make_baseline_policy(r.spec, env)
     if isinstance(r.policy, str):
         return make_policy(r.policy, env, r.model_path, r.delta)
-    return r.policy
+    bind = getattr(r.policy, "bind", None)  # a policy that needs its env first (InTurns.deferred)
+    return bind(env) if callable(bind) else r.policy
 
 
 def evaluate(

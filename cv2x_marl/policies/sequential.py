@@ -205,6 +205,12 @@ class InTurns:
         self.env = env
         self.name = getattr(policy, "name", "learned")
 
+    @classmethod
+    def deferred(cls, policy: Any) -> _DeferredTurns:
+        """``policy`` in turns in whichever env it is evaluated in: :func:`~cv2x_marl.experiments.evaluate.evaluate`
+        calls the returned object's ``bind(env)`` with its env (a training run's evaluations)."""
+        return _DeferredTurns(policy)
+
     def reset(self, seed: int | None = None) -> None:
         self.policy.reset(seed)
 
@@ -223,3 +229,21 @@ class InTurns:
 
         actions, _ = decide_in_turns(env, decide)
         return {a: actions[env.agent_index[a]].astype(np.float32) for a in observations}
+
+
+class _DeferredTurns:
+    """A policy to wrap in :class:`InTurns` once its env is known (:meth:`InTurns.deferred`)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+        self.name = getattr(policy, "name", "learned")
+
+    def bind(self, env: MobilityEnv) -> InTurns:
+        """The policy acting at its turns in ``env``."""
+        return InTurns(self.policy, env)
+
+    def reset(self, seed: int | None = None) -> None:  # pragma: no cover - evaluate binds it first
+        raise RuntimeError("a deferred InTurns policy acts once bound to its env (InTurns.deferred)")
+
+    def act(self, observations: Observations) -> Actions:  # pragma: no cover - evaluate binds it first
+        raise RuntimeError("a deferred InTurns policy acts once bound to its env (InTurns.deferred)")

@@ -124,6 +124,10 @@ class Mappo:
         self.actor: Any
         self.critic: Any
         self.discrete = isinstance(first.action_space(self.agents[0]), spaces.Discrete)
+        #: the vehicles decide in turns (``cv2x/Cooperative-v1``): collection samples subframe by subframe
+        self.turns = first.options.decision_order == "subframe"
+        if self.turns and [first.agent_index[a] for a in self.agents] != list(range(self.n_agents)):
+            raise TrainError(f"{cfg.env_id}: the agents must be the vehicles in index order to act in turns")
         #: the masked path's list length, reward and critic inputs (:mod:`cv2x_marl.rl.mappo_masked`)
         self.n_actions, self.team, self.critic_kind = 0, True, "state"
         if self.discrete:  # masked choices (cv2x/Resource-v0): rl.mappo_masked
@@ -223,11 +227,15 @@ class Mappo:
             for t in range(t_):
                 if stop is not None and stop.signal is not None:
                     return None
-                obs[t] = [[o[a] for a in self.agents] for o in current]
-                td = TensorDict({GROUP: TensorDict({"observation": torch.from_numpy(obs[t])}, [k_, n_])}, [k_])
-                self.policy(td)
-                act[t] = td[GROUP, "action"].numpy()
-                logp[t] = td[GROUP, "sample_log_prob"].numpy()
+                if self.turns:  # Cooperative-v1: each copy's vehicles sample at their turns, subframe by subframe
+                    for k, env in enumerate(self.envs):
+                        obs[t, k], act[t, k], logp[t, k] = self._sample_in_turns(env)
+                else:
+                    obs[t] = [[o[a] for a in self.agents] for o in current]
+                    td = TensorDict({GROUP: TensorDict({"observation": torch.from_numpy(obs[t])}, [k_, n_])}, [k_])
+                    self.policy(td)
+                    act[t] = td[GROUP, "action"].numpy()
+                    logp[t] = td[GROUP, "sample_log_prob"].numpy()
                 for k, env in enumerate(self.envs):
                     o, r, term, trunc, _ = env.step(dict(zip(self.agents, act[t, k], strict=True)))
                     rew[t, k] = np.mean([r[a] for a in self.agents])  # the team's: equal for every agent
@@ -239,6 +247,28 @@ class Mappo:
                         )
             self.torch_state = torch.random.get_rng_state()
         return {"obs": obs, "state": state, "action": act, "log_prob": logp, "reward": rew}
+
+    def _sample_in_turns(self, env: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One period of a turn-order env (``cv2x/Cooperative-v1``): the vehicles of each subframe sample their
+        actions on their observations at their turn (:func:`~cv2x_marl.env.turns.decide_in_turns`), in one actor
+        call per subframe; returns the observations [N, D], actions [N, 2] and log-probabilities [N]."""
+        import torch
+        from tensordict import TensorDict
+
+        from cv2x_marl.env.turns import decide_in_turns
+
+        logp = np.zeros(self.n_agents, np.float32)
+        act = np.zeros((self.n_agents, 2), np.float32)
+
+        def decide(rows: np.ndarray, o: np.ndarray) -> np.ndarray:
+            td = TensorDict({GROUP: TensorDict({"observation": torch.from_numpy(o)}, [rows.size])}, [])
+            self.policy(td)
+            act[rows] = td[GROUP, "action"].numpy()
+            logp[rows] = td[GROUP, "sample_log_prob"].numpy()
+            return act[rows]
+
+        _, turn_obs = decide_in_turns(env, decide)
+        return turn_obs, act, logp
 
     def update(self, batch: dict[str, Any]) -> dict[str, float]:
         """GAE and the clipped PPO epochs (module docstring, steps 2-3); the mean losses."""
@@ -315,7 +345,12 @@ class Mappo:
             from cv2x_marl.policies.mappo import MaskedChoicePolicy
 
             return MaskedChoicePolicy(self.actor, "mappo")
-        return BatchPolicy(self.act_fn(), "mappo")
+        policy = BatchPolicy(self.act_fn(), "mappo")
+        if self.turns:  # it acts at its turns in the evaluation env too
+            from cv2x_marl.policies.sequential import InTurns
+
+            return InTurns.deferred(policy)
+        return policy
 
     def model(self) -> dict[str, Any]:
         """What ``model.pt`` holds (plain values and tensors: ``torch.load(weights_only=True)`` reads it)."""

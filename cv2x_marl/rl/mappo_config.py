@@ -43,10 +43,11 @@ GROUP = "agents"
 #: the trainers ``cv2x-marl train`` dispatches to (``--algo`` or the config's ``algo``)
 ALGOS = ("ppo", "mappo", "utility-map", "imitation")
 #: the env ids MAPPO trains on: on ``cv2x/Cooperative-v0`` every vehicle moves and the reward is the team's, so one
-#: critic value per env step (on ``state()``) serves every agent; on ``cv2x/Resource-v0`` every vehicle that reselects
-#: picks an entry of its candidate list (masked ``Discrete`` actions), each rewarded with its own utility (or the
-#: team's)
-MAPPO_ENV_IDS = ("cv2x/Cooperative-v0", "cv2x/Resource-v0")
+#: critic value per env step (on ``state()``) serves every agent (``cv2x/Cooperative-v1``: the same, the vehicles
+#: sampling their moves at their turns, :meth:`cv2x_marl.rl.mappo.Mappo.collect`); on ``cv2x/Resource-v0`` every
+#: vehicle that reselects picks an entry of its candidate list (masked ``Discrete`` actions), each rewarded with its
+#: own utility (or the team's)
+MAPPO_ENV_IDS = ("cv2x/Cooperative-v0", "cv2x/Cooperative-v1", "cv2x/Resource-v0")
 #: the env ids of masked discrete actions (:class:`cv2x_marl.policies.mappo_nets.MaskedActor`)
 MASKED_ENV_IDS = ("cv2x/Resource-v0",)
 #: ``mappo.encoder``: what the shared actor reads (:mod:`cv2x_marl.policies.encoders`; ``mlp``: the flat observation;

@@ -171,3 +171,54 @@ def test_quick_training_beats_random_on_the_team_utility(tmp_path: Path) -> None
     # +5.1 %, +12.3 %; gbmu +23.6 %: 25 short iterations learn to move, not to beat the scripts)
     assert mappo["mean_utility_gain"] > rnd["mean_utility_gain"] + 0.10
     assert mappo["mean_return"] > rnd["mean_return"]
+
+
+#: TINY on cv2x/Cooperative-v1: the vehicles sample their moves at their turns
+TINY_V1 = MappoConfig(**{**TINY.__dict__, "env_id": "cv2x/Cooperative-v1"})
+
+
+def test_on_cooperative_v1_each_vehicle_samples_at_its_turn() -> None:
+    """Collection in turns: every stored observation is the vehicle's observation at its turn given the actions the
+    earlier subframes sampled (``decide_in_turns`` replayed with them), and every stored log-probability is the
+    actor's for that action at that observation."""
+    from cv2x_marl.env.turns import decide_in_turns, subframes
+
+    run = build_mappo(TINY_V1, seed=0)
+    assert run.turns and not build_mappo(TINY, seed=0).turns
+    env = run.envs[0]
+    env.reset(seed=run.pool[0])
+    with torch.no_grad():
+        obs, act, logp = run._sample_in_turns(env)
+    assert len(np.unique(subframes(env))) > 1  # several turns in the period
+    replay, turn_obs = decide_in_turns(env, lambda rows, o: act[rows])
+    np.testing.assert_array_equal(obs, turn_obs)
+    np.testing.assert_array_equal(replay, act.astype(np.float64))
+    first = env.observations()
+    later = [i for i, a in enumerate(run.agents) if not np.array_equal(obs[i], first[a])]
+    assert later  # some vehicle saw a move announced before its turn
+    td = TensorDict({GROUP: TensorDict({"observation": torch.from_numpy(obs)}, [run.n_agents])}, [])
+    with torch.no_grad():
+        dist = run.policy.get_dist(td)
+        expect = dist.log_prob(torch.from_numpy(act))
+    np.testing.assert_allclose(expect.numpy(), logp, rtol=0, atol=2e-4)
+
+
+def test_on_cooperative_v1_training_evaluates_in_turns(tmp_path: Path) -> None:
+    """A run on Cooperative-v1 is reproducible, and its saved model, loaded with ``ppo:PATH``, acts at its turns:
+    the run's last evaluation equals ``evaluate`` of the file on the same episodes."""
+    from cv2x_marl.policies.sequential import InTurns
+
+    a = train_mappo(TINY_V1, 2 * 2 * 10 * 8, 3, tmp_path / "a", progress=False)
+    b = train_mappo(TINY_V1, 2 * 2 * 10 * 8, 3, tmp_path / "b", progress=False)
+    assert (tmp_path / "a" / "eval.csv").read_text() == (tmp_path / "b" / "eval.csv").read_text()
+    assert a["iterations"] == 2
+    par = make_parallel_env("cv2x/Cooperative-v1", max_cycles=10, max_step_m=10.0, overrides=SCENE)
+    assert isinstance(make_policy(f"ppo:{tmp_path / 'a' / 'model.pt'}", par), InTurns)
+    rows = (tmp_path / "a" / "eval.csv").read_text().splitlines()
+    last = dict(zip(rows[0].split(","), rows[-1].split(","), strict=True))
+    res = evaluate(
+        None, f"ppo:{tmp_path / 'a' / 'model.pt'}", TINY.eval_episodes, TINY.eval_seed, None,
+        {"max_cycles": 10, "max_step_m": 10.0, "overrides": SCENE}, progress=False,
+    )  # fmt: skip
+    assert res["env"] == "cv2x/Cooperative-v1"
+    assert float(last["mappo_mean_utility_gain"]) == pytest.approx(res["mean_utility_gain"], abs=1e-12)
