@@ -211,7 +211,7 @@ def test_on_cooperative_v1_training_evaluates_in_turns(tmp_path: Path) -> None:
     a = train_mappo(TINY_V1, 2 * 2 * 10 * 8, 3, tmp_path / "a", progress=False)
     b = train_mappo(TINY_V1, 2 * 2 * 10 * 8, 3, tmp_path / "b", progress=False)
     assert (tmp_path / "a" / "eval.csv").read_text() == (tmp_path / "b" / "eval.csv").read_text()
-    assert a["iterations"] == 2
+    assert a["iterations"] == b["iterations"] == 2 and a["parameters_digest"] == b["parameters_digest"]
     par = make_parallel_env("cv2x/Cooperative-v1", max_cycles=10, max_step_m=10.0, overrides=SCENE)
     assert isinstance(make_policy(f"ppo:{tmp_path / 'a' / 'model.pt'}", par), InTurns)
     rows = (tmp_path / "a" / "eval.csv").read_text().splitlines()
