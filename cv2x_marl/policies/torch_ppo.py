@@ -31,6 +31,13 @@ MODEL_FORMAT = "cv2x_marl.torch_ppo"
 PT_FORMATS = (MODEL_FORMAT, MAPPO_FORMAT)
 
 
+def model_contents(env_id: str, net: Any) -> dict[str, Any]:
+    """What a torchrl-format ``model.pt`` holds for ``net`` (a :class:`cv2x_marl.policies.ppo_nets.ActorCritic`)
+    trained on ``env_id``: the format tag, the id, the network's keyword arguments and weights (plain values and
+    tensors; ``torch.save`` it)."""
+    return {"format": MODEL_FORMAT, "env_id": env_id, "net_kwargs": net.spec(), "net_state": net.state_dict()}
+
+
 def read_model_file(path: Path, what: str) -> dict[str, Any]:
     """``torch.load(path, weights_only=True)`` of a ``.pt`` model, checked against its run's checksum.
 

@@ -59,7 +59,7 @@ from cv2x_marl.experiments.evaluate import evaluate
 from cv2x_marl.extras import require
 from cv2x_marl.io import atomic_write, write_json
 from cv2x_marl.policies.base import BatchPolicy
-from cv2x_marl.policies.torch_ppo import MODEL_FORMAT
+from cv2x_marl.policies.torch_ppo import model_contents
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.ppo_step import LOSS_KEYS, ppo_minibatch_step
 from cv2x_marl.rl.train_checks import check_training_config
@@ -307,12 +307,7 @@ class FastPpo:
 
     def model(self) -> dict[str, Any]:
         """What ``model.pt`` holds (:class:`cv2x_marl.policies.torch_ppo.TorchPpoPolicy` reads it)."""
-        return {
-            "format": MODEL_FORMAT,
-            "env_id": self.cfg.env_id,
-            "net_kwargs": self.net.spec(),
-            "net_state": self.net.state_dict(),
-        }
+        return model_contents(self.cfg.env_id, self.net)
 
     def digest(self) -> str:
         """A short hash of the network's parameters (to compare two runs)."""

@@ -40,10 +40,10 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
-from cv2x_marl.io import write_json
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
-from cv2x_marl.rl.train_config import MAX_COPIES, check_pooled_env, check_reals, read_sections, with_cli_values
+from cv2x_marl.rl.pooled_run import check_pooled_run, cli_budget, train_in_folder
+from cv2x_marl.rl.train_config import check_reals, read_sections, with_cli_values
 
 #: the env ids imitation trains on (the ``sensing`` expert plans on observation version 3's measurements)
 IMITATION_ENV_IDS = ("cv2x/SingleMover-v3",)
@@ -93,15 +93,7 @@ class ImitationConfig:
     algo: str = "imitation"
 
     def __post_init__(self) -> None:
-        if self.algo != "imitation":
-            raise TrainError(f"algo must be 'imitation' in an imitation config, got {self.algo!r}")
-        if self.env_id not in IMITATION_ENV_IDS:
-            raise TrainError(f"env_id {self.env_id!r}: imitation of sensing trains on {', '.join(IMITATION_ENV_IDS)}")
-        for name in ("copies", "eval_every", "eval_episodes"):
-            object.__setattr__(self, name, count_at_least(f"train.{name}", getattr(self, name)))
-        if self.copies > MAX_COPIES:
-            raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
-        check_pooled_env(self.env_id, self.env, "imitation")
+        check_pooled_run(self, "imitation", IMITATION_ENV_IDS, "imitation of sensing")
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -129,21 +121,11 @@ def train_imitation(
         TrainError: a bad configuration (before ``run_dir`` is touched).
         cv2x_marl.runs.RunFolderError: the folder is in use, or not empty without ``overwrite``.
     """
-    from cv2x_marl.runs import RunFolder
-
     if not is_int(timesteps) or timesteps < 1:
         raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
     run = _ImitationRun(cfg, seed)
-    try:
-        resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
-        params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps, "algo": "imitation"}
-        with RunFolder(run_dir, "train", overwrite=overwrite, parameters=params):
-            write_json(Path(run_dir) / "train_config.json", resolved)
-            record = run.train(timesteps, Path(run_dir), progress)
-            write_json(Path(run_dir) / "record.json", record)
-            return record
-    finally:
-        run.close()
+    resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
+    return train_in_folder(run, resolved, timesteps, seed, run_dir, progress, overwrite)
 
 
 class _ImitationRun:
@@ -248,14 +230,9 @@ class _ImitationRun:
 
     def model(self) -> dict[str, Any]:
         """``model.pt``: the torchrl PPO format (:class:`cv2x_marl.policies.torch_ppo.TorchPpoPolicy` reads it)."""
-        from cv2x_marl.policies.torch_ppo import MODEL_FORMAT
+        from cv2x_marl.policies.torch_ppo import model_contents
 
-        return {
-            "format": MODEL_FORMAT,
-            "env_id": self.cfg.env_id,
-            "net_kwargs": self.net.spec(),
-            "net_state": self.net.state_dict(),
-        }
+        return model_contents(self.cfg.env_id, self.net)
 
     def train(self, timesteps: int, run_dir: Path, progress: bool) -> dict[str, Any]:
         import torch
@@ -314,14 +291,8 @@ def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
     """``cv2x-marl train`` for an imitation config (``--algo imitation`` or ``algo: imitation``): ``--config``,
     ``--env``, ``--copies``, ``--timesteps`` and ``--seed`` (else the file's), ``--out``, ``--overwrite``;
     ``--resume`` is refused (a run takes minutes)."""
-    from cv2x_marl.rl.train_config import run_settings
-
-    if args.resume:
-        raise TrainError("--resume: an imitation run is not checkpointed (it takes minutes); train it again")
+    timesteps, seed = cli_budget(args, default_timesteps, "an imitation")
     cfg = load_imitation_config(args.config, env_id=args.env, copies=args.copies)
-    from_file = run_settings(args.config)
-    timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", default_timesteps)
-    seed = args.seed if args.seed is not None else from_file.get("seed", 0)
     record = train_imitation(cfg, timesteps, seed, args.out, progress=not args.quiet, overwrite=args.overwrite)
     if args.json:
         print_json(record)

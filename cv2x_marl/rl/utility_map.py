@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 
 from cv2x_marl.checks import is_int
-from cv2x_marl.io import write_json
 from cv2x_marl.policies.utility_map import (
     LINK_FEATURES,
     UtilityMap,
@@ -48,7 +47,8 @@ from cv2x_marl.policies.utility_map import (
 )
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
-from cv2x_marl.rl.train_config import MAX_COPIES, check_pooled_env, check_reals, read_sections, with_cli_values
+from cv2x_marl.rl.pooled_run import check_pooled_run, cli_budget, train_in_folder
+from cv2x_marl.rl.train_config import check_reals, read_sections, with_cli_values
 
 #: the env ids the map trains on (observation version 3, one mover in a snapshot)
 MAP_ENV_IDS = ("cv2x/SingleMover-v3",)
@@ -115,15 +115,7 @@ class MapConfig:
     algo: str = "utility-map"
 
     def __post_init__(self) -> None:
-        if self.algo != "utility-map":
-            raise TrainError(f"algo must be 'utility-map' in a utility-map config, got {self.algo!r}")
-        if self.env_id not in MAP_ENV_IDS:
-            raise TrainError(f"env_id {self.env_id!r}: the utility map trains on {', '.join(MAP_ENV_IDS)}")
-        for name in ("copies", "eval_every", "eval_episodes"):
-            object.__setattr__(self, name, count_at_least(f"train.{name}", getattr(self, name)))
-        if self.copies > MAX_COPIES:
-            raise TrainError(f"train.copies must be an integer in [1, {MAX_COPIES:,}], got {self.copies}")
-        check_pooled_env(self.env_id, self.env, "the utility map")
+        check_pooled_run(self, "utility-map", MAP_ENV_IDS, "the utility map")
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -224,21 +216,11 @@ def train_map(
         TrainError: a bad configuration (before ``run_dir`` is touched).
         cv2x_marl.runs.RunFolderError: the folder is in use, or not empty without ``overwrite``.
     """
-    from cv2x_marl.runs import RunFolder
-
     if not is_int(timesteps) or timesteps < 1:
         raise TrainError(f"--timesteps must be an integer >= 1, got {timesteps!r}")
     run = _MapRun(cfg, seed)
-    try:
-        resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
-        params = {"env_id": cfg.env_id, "seed": seed, "timesteps": timesteps, "algo": "utility-map"}
-        with RunFolder(run_dir, "train", overwrite=overwrite, parameters=params):
-            write_json(Path(run_dir) / "train_config.json", resolved)
-            record = run.train(timesteps, Path(run_dir), progress)
-            write_json(Path(run_dir) / "record.json", record)
-            return record
-    finally:
-        run.close()
+    resolved = {**cfg.to_dict(), "seed": seed, "timesteps": timesteps}
+    return train_in_folder(run, resolved, timesteps, seed, run_dir, progress, overwrite)
 
 
 class _MapRun:
@@ -422,14 +404,8 @@ def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:
     """``cv2x-marl train`` for a utility-map config (``--algo utility-map`` or ``algo: utility-map``): ``--config``,
     ``--env``, ``--copies``, ``--timesteps`` and ``--seed`` (else the file's), ``--out``, ``--overwrite``;
     ``--resume`` is refused (a run takes minutes)."""
-    from cv2x_marl.rl.train_config import run_settings
-
-    if args.resume:
-        raise TrainError("--resume: a utility-map run is not checkpointed (it takes minutes); train it again")
+    timesteps, seed = cli_budget(args, default_timesteps, "a utility-map")
     cfg = load_map_config(args.config, env_id=args.env, copies=args.copies)
-    from_file = run_settings(args.config)
-    timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", default_timesteps)
-    seed = args.seed if args.seed is not None else from_file.get("seed", 0)
     record = train_map(cfg, timesteps, seed, args.out, progress=not args.quiet, overwrite=args.overwrite)
     if args.json:
         print_json(record)
