@@ -19,7 +19,12 @@ from pathlib import Path
 from cv2x_marl import plotting
 
 #: the shipped models' folder prefixes, per task
-PREFIXES = {"singlemover": "singlemover-v3", "cooperative": "cooperative", "traffic": "traffic"}
+PREFIXES = {
+    "singlemover": "singlemover-v3",
+    "cooperative": "cooperative",
+    "cooperative-v1": "cooperative-v1",
+    "traffic": "traffic",
+}
 
 
 def curves_of(models: Path, prefix: str) -> tuple[dict[str, list[dict[str, float]]], str]:

@@ -1,7 +1,8 @@
-"""The shipped models (agents/models/<task>_seed{0..4}/, the utility maps and the resource learner): five training
-seeds per learner, each with the configuration and env options that rebuild its env, trained within 15 CPU-minutes,
-and reproducing its rows of the published benchmark run (docs/benchmark/learners/benchmark.csv, learners-map/ and
-resource-learners/) through the benchmark's own job."""
+"""The shipped models (agents/models/<task>_seed{0..4}/, the utility maps, the resource learner and the MAPPO trained in
+turns on Cooperative-v1): five training seeds per learner, each with the configuration and env options that rebuild
+its env, trained within 15 CPU-minutes, and reproducing its rows of the published benchmark run
+(docs/benchmark/learners/benchmark.csv, learners-map/, resource-learners/ and cooperative-v1-learners/) through the
+benchmark's own job."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ TABLE = ROOT / "docs" / "benchmark" / "learners" / "benchmark.csv"
 MAP_TABLE = ROOT / "docs" / "benchmark" / "learners-map" / "benchmark.csv"
 #: the resource learners' run (docs/rl.md, "Resource choice"), next to the task's scripted rows
 RESOURCE_TABLE = ROOT / "docs" / "benchmark" / "resource-learners" / "benchmark.csv"
+#: the MAPPO trained in turns on the coordination channel (docs/benchmark.md, "The coordination channel")
+V1_TABLE = ROOT / "docs" / "benchmark" / "cooperative-v1-learners" / "benchmark.csv"
 #: learner -> (folder prefix, env id the models were trained on, model file, benchmark label, config, the env options
 #: that shape observations and actions beyond the id's defaults); the benchmark tasks' learners by task name
 SHIPPED = {
@@ -37,9 +40,17 @@ SHIPPED = {
     ),
     "singlemover-map": ("singlemover-map", "cv2x/SingleMover-v3", "model.npz", "map", "map_single_v3.yaml", {}),
     "resource-ippo": ("resource-ippo", "cv2x/Resource-v0", "model.pt", "ippo", "ippo_resource.yaml", {}),
+    "cooperative-v1": (
+        "cooperative-v1",
+        "cv2x/Cooperative-v1",
+        "model.pt",
+        "mappo-v1",
+        "mappo_cooperative_v1.yaml",
+        {},
+    ),
 }
 #: the table each learner's rows were published in (default :data:`TABLE`)
-TABLES = {"singlemover-map": MAP_TABLE, "resource-ippo": RESOURCE_TABLE}
+TABLES = {"singlemover-map": MAP_TABLE, "resource-ippo": RESOURCE_TABLE, "cooperative-v1": V1_TABLE}
 #: the task of each learner of :data:`SHIPPED`
 TASK_OF = {name: name.split("-")[0] for name in SHIPPED}
 #: issue 28's training budget per seed on a 2-core machine
