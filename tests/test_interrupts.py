@@ -32,9 +32,13 @@ STRESS_INTERRUPTS = 300
 
 _STRESS = textwrap.dedent(
     """
-    import _thread, random, sys, threading
+    import _thread, random, signal, sys, threading
     import numpy as np
     from cv2x_marl.sim import kernels
+
+    # Python's own SIGINT handler, also when the runner inherited SIGINT ignored (a background job of a shell
+    # without job control): interrupt_main() does nothing for an ignored signal, and the loop below would spin
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     which, n_interrupts = sys.argv[1], int(sys.argv[2])
     if which == "shadowing":
@@ -66,8 +70,8 @@ _STRESS = textwrap.dedent(
     caught = 0
     for _ in range(n_interrupts):
         timer = threading.Timer(random.uniform(0.0005, 0.005), _thread.interrupt_main)
-        timer.start()
         try:
+            timer.start()  # on a loaded machine the timer may fire before start() has returned
             while True:
                 call(*args)
         except KeyboardInterrupt:
