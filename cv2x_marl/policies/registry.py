@@ -175,7 +175,7 @@ def make_policy(spec: str, env: MobilityEnv, model_path: str = PAPER_MODEL, delt
         if is_map_file(path):
             return UtilityMapPolicy(path, env)
         learned = load_pt_policy(path, env) if is_mappo_file(path) else PpoPolicy(path, env)
-        if getattr(getattr(env, "options", None), "decision_order", "simultaneous") == "subframe":
+        if env.options.decision_order == "subframe":
             return InTurns(learned, env)  # Cooperative-v1: it acts at its turns
         return learned
     raise ValueError(f"unknown policy {spec!r}; policies: {', '.join(SCRIPTED)}, {PPO_PREFIX}PATH")

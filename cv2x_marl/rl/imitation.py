@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,7 +41,14 @@ import numpy as np
 from cv2x_marl.checks import is_int
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
-from cv2x_marl.rl.pooled_run import check_pooled_run, cli_budget, train_in_folder
+from cv2x_marl.rl.pooled_run import (
+    check_pooled_run,
+    cli_budget,
+    round_record,
+    train_in_folder,
+    train_rounds,
+    write_curve,
+)
 from cv2x_marl.rl.train_config import check_reals, read_sections, with_cli_values
 
 #: the env ids imitation trains on (the ``sensing`` expert plans on observation version 3's measurements)
@@ -237,54 +243,21 @@ class _ImitationRun:
     def train(self, timesteps: int, run_dir: Path, progress: bool) -> dict[str, Any]:
         import torch
 
-        from cv2x_marl.rl.utility_map import write_curve
-
         iterations = math.ceil(timesteps / self.agent_steps())
-        rows: list[dict[str, Any]] = []
-        cpu0, wall0 = time.process_time(), time.perf_counter()
-        bar = _progress(iterations, progress)
-        for it in range(iterations):
-            self.collect(expert_drives=it < self.cfg.imitation.expert_iterations)
-            loss = self.fit()
-            row: dict[str, Any] = {
-                "iteration": it + 1,
-                "agent_steps": (it + 1) * self.agent_steps(),
-                "cpu_s": round(time.process_time() - cpu0, 3),
-                "fit_loss": loss,
-                "eval_utility_gain": "",
-            }
-            if (it + 1) % self.cfg.eval_every == 0 or it + 1 == iterations:
-                row["eval_utility_gain"] = self.evaluate()["mean_utility_gain"]
-            rows.append(row)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{loss:.4f}", gain=row["eval_utility_gain"] or "-")
-        if bar is not None:
-            bar.close()
+        expert = self.cfg.imitation.expert_iterations
+
+        def one_round(it: int) -> float:
+            self.collect(expert_drives=it < expert)
+            return self.fit()
+
+        rows, wall_s = train_rounds(
+            iterations, self.agent_steps(), one_round, self.evaluate, self.cfg.eval_every,
+            "imitation" if progress else None,
+        )  # fmt: skip
         torch.save(self.model(), run_dir / "model.pt")
         write_curve(run_dir, rows, "imitation of sensing")
-        last = rows[-1]
-        return {
-            "algo": "imitation",
-            "env_id": self.cfg.env_id,
-            "seed": self.seed,
-            "timesteps": iterations * self.agent_steps(),
-            "iterations": iterations,
-            "expert_iterations": min(self.cfg.imitation.expert_iterations, iterations),
-            "pairs": int(sum(len(o) for o in self.obs)),
-            "cpu_s": last["cpu_s"],
-            "wall_s": round(time.perf_counter() - wall0, 3),
-            "final_eval_utility_gain": last["eval_utility_gain"],
-            "final_fit_loss": last["fit_loss"],
-        }
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="imitation", unit="round")
+        record = round_record("imitation", self.cfg.env_id, self.seed, self.agent_steps(), rows, wall_s)
+        return {**record, "expert_iterations": min(expert, iterations), "pairs": int(sum(len(o) for o in self.obs))}
 
 
 def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:

@@ -1,8 +1,12 @@
 """What the trainers that collect whole episodes from the start pool share (the utility map, imitation): their
-configuration's common checks, the run folder around a run, and the CLI's seed and budget."""
+configuration's common checks, the loop of rounds with its learning curve, the run folder around a run, and the
+CLI's seed and budget."""
 
 from __future__ import annotations
 
+import csv
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -63,3 +67,84 @@ def cli_budget(args: Any, default_timesteps: int, what: str) -> tuple[int, int]:
     timesteps = args.timesteps if args.timesteps is not None else from_file.get("timesteps", default_timesteps)
     seed = args.seed if args.seed is not None else from_file.get("seed", 0)
     return int(timesteps), int(seed)
+
+
+def train_rounds(
+    iterations: int,
+    agent_steps: int,
+    round_fn: Callable[[int], float],
+    evaluate_fn: Callable[[], dict[str, Any]],
+    eval_every: int,
+    progress: str | None,
+) -> tuple[list[dict[str, Any]], float]:
+    """Run ``iterations`` rounds, ``round_fn(it)`` each (collect and fit; it returns the fit's loss), and
+    ``evaluate_fn()`` every ``eval_every`` rounds and after the last.
+
+    Args:
+        iterations: rounds; agent_steps: agent-steps of one round (for the curve).
+        round_fn, evaluate_fn: one round; an evaluation (its ``mean_utility_gain`` is the curve's gain).
+        eval_every: rounds between two evaluations.
+        progress: the progress bar's name (None: no bar).
+
+    Returns:
+        The curve's rows (``iteration``, ``agent_steps``, ``cpu_s``: process CPU seconds since the first round,
+        ``fit_loss``, ``eval_utility_gain``: empty without an evaluation) and the wall seconds.
+    """
+    rows: list[dict[str, Any]] = []
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    bar = None
+    if progress is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=iterations, desc=progress, unit="round")
+    for it in range(iterations):
+        loss = round_fn(it)
+        row: dict[str, Any] = {
+            "iteration": it + 1,
+            "agent_steps": (it + 1) * agent_steps,
+            "cpu_s": round(time.process_time() - cpu0, 3),
+            "fit_loss": loss,
+            "eval_utility_gain": "",
+        }
+        if (it + 1) % eval_every == 0 or it + 1 == iterations:
+            row["eval_utility_gain"] = evaluate_fn()["mean_utility_gain"]
+        rows.append(row)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4f}", gain=row["eval_utility_gain"] or "-")
+    if bar is not None:
+        bar.close()
+    return rows, round(time.perf_counter() - wall0, 3)
+
+
+def round_record(
+    algo: str, env_id: str, seed: int, agent_steps: int, rows: list[dict[str, Any]], wall_s: float
+) -> dict[str, Any]:
+    """The ``record.json`` entries every pooled run has, from its curve ``rows`` (:func:`train_rounds`)."""
+    last = rows[-1]
+    return {
+        "algo": algo,
+        "env_id": env_id,
+        "seed": seed,
+        "timesteps": len(rows) * agent_steps,
+        "iterations": len(rows),
+        "cpu_s": last["cpu_s"],
+        "wall_s": wall_s,
+        "final_eval_utility_gain": last["eval_utility_gain"],
+        "final_fit_loss": last["fit_loss"],
+    }
+
+
+def write_curve(run_dir: Path, rows: list[dict[str, Any]], title: str) -> None:
+    """``curve.csv`` (one row per round) and ``curve.png`` (utility gain against CPU seconds, when matplotlib is
+    installed) of a pooled run."""
+    with open(run_dir / "curve.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    try:
+        from cv2x_marl import plotting
+
+        plotting.plot_gain_vs_cpu({"run": rows}, run_dir / "curve.png", title)
+    except ImportError:  # the figure needs matplotlib; the CSV is the data
+        return

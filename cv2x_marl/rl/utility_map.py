@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,7 +46,14 @@ from cv2x_marl.policies.utility_map import (
 )
 from cv2x_marl.rl.errors import TrainError
 from cv2x_marl.rl.mappo_config import count_at_least, hidden_layers
-from cv2x_marl.rl.pooled_run import check_pooled_run, cli_budget, train_in_folder
+from cv2x_marl.rl.pooled_run import (
+    check_pooled_run,
+    cli_budget,
+    round_record,
+    train_in_folder,
+    train_rounds,
+    write_curve,
+)
 from cv2x_marl.rl.train_config import check_reals, read_sections, with_cli_values
 
 #: the env ids the map trains on (observation version 3, one mover in a snapshot)
@@ -337,67 +343,18 @@ class _MapRun:
 
         torch.set_num_threads(1)
         iterations = math.ceil(timesteps / self.agent_steps())
-        rows: list[dict[str, Any]] = []
-        cpu0, wall0 = time.process_time(), time.perf_counter()
-        bar = _progress(iterations, progress)
-        for it in range(iterations):
+
+        def one_round(it: int) -> float:
             self.collect(it)
-            loss = self.fit()
-            row: dict[str, Any] = {
-                "iteration": it + 1,
-                "agent_steps": (it + 1) * self.agent_steps(),
-                "cpu_s": round(time.process_time() - cpu0, 3),
-                "fit_loss": loss,
-                "eval_utility_gain": "",
-            }
-            if (it + 1) % self.cfg.eval_every == 0 or it + 1 == iterations:
-                row["eval_utility_gain"] = self.evaluate()["mean_utility_gain"]
-            rows.append(row)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{loss:.3f}", gain=row["eval_utility_gain"] or "-")
-        if bar is not None:
-            bar.close()
-        umap = self.current_map()
-        umap.save(run_dir / "model.npz")
+            return self.fit()
+
+        rows, wall_s = train_rounds(
+            iterations, self.agent_steps(), one_round, self.evaluate, self.cfg.eval_every,
+            "utility map" if progress else None,
+        )  # fmt: skip
+        self.current_map().save(run_dir / "model.npz")
         write_curve(run_dir, rows, "learned utility map")
-        last = rows[-1]
-        return {
-            "algo": "utility-map",
-            "env_id": self.cfg.env_id,
-            "seed": self.seed,
-            "timesteps": iterations * self.agent_steps(),
-            "iterations": iterations,
-            "cpu_s": last["cpu_s"],
-            "wall_s": round(time.perf_counter() - wall0, 3),
-            "final_eval_utility_gain": last["eval_utility_gain"],
-            "final_fit_loss": last["fit_loss"],
-        }
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="utility map", unit="it")
-
-
-def write_curve(run_dir: Path, rows: list[dict[str, Any]], title: str) -> None:
-    """``curve.csv`` (one row per iteration) and ``curve.png`` (utility gain against CPU seconds, when matplotlib
-    is installed) of a utility-map or imitation run."""
-    import csv
-
-    with open(run_dir / "curve.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    try:
-        from cv2x_marl import plotting
-
-        plotting.plot_gain_vs_cpu({"run": rows}, run_dir / "curve.png", title)
-    except ImportError:  # the figure needs matplotlib; the CSV is the data
-        return
+        return round_record("utility-map", self.cfg.env_id, self.seed, self.agent_steps(), rows, wall_s)
 
 
 def cli_train(args: Any, default_timesteps: int, print_json: Any) -> int:

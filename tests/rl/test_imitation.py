@@ -4,6 +4,7 @@ model file through ``ppo:PATH``, and the quick mode against the scripts on train
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -143,7 +144,7 @@ def test_quick_mode_imitates_the_expert_and_beats_random(tmp_path: Path) -> None
     cfg = ImitationConfig(copies=16, env=env, imitation=settings, eval_every=100, eval_episodes=1)
     train_imitation(cfg, 4 * 16 * 100, 0, tmp_path / "run", progress=False)
 
-    check = _ImitationRun(dataclasses_replace(cfg, copies=2), 1)
+    check = _ImitationRun(dataclasses.replace(cfg, copies=2), 1)
     try:
         untrained = check.act
         check.collect(expert_drives=True)
@@ -168,9 +169,3 @@ def test_quick_mode_imitates_the_expert_and_beats_random(tmp_path: Path) -> None
         for name, p in (("clone", f"ppo:{tmp_path / 'run' / 'model.pt'}"), ("random", "random"))
     }
     assert gains["clone"] > gains["random"] + 0.10, gains
-
-
-def dataclasses_replace(cfg: ImitationConfig, **changes: object) -> ImitationConfig:
-    import dataclasses
-
-    return dataclasses.replace(cfg, **changes)  # type: ignore[arg-type]
