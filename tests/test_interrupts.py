@@ -138,7 +138,9 @@ def test_a_signal_met_in_numba_code_is_raised_again_once_it_has_left() -> None:
 def _signalled(argv: list[str], out: Path, sig: signal.Signals, env: dict[str, str] | None = None) -> tuple[int, str]:
     """Run ``cv2x-marl ARGV --out OUT``, send ``sig`` once its run folder exists plus a second, wait for the end."""
     cmd = [CLI, *argv, "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_default_sigint
+    )
     deadline = time.monotonic() + 120
     while not (out / "run.json").exists() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -146,6 +148,13 @@ def _signalled(argv: list[str], out: Path, sig: signal.Signals, env: dict[str, s
     proc.send_signal(sig)
     _, stderr = proc.communicate(timeout=180)
     return proc.returncode, stderr
+
+
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to its default, as in a terminal, also when this runner was started
+    with SIGINT ignored (a background job of a shell without job control), which a child would inherit: the CLI
+    then keeps it ignored (as under ``nohup``) and a test's Ctrl-C would never reach it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 #: repetitions per command and signal: with a 1-in-3 crash, all 16 runs would pass by luck with p = (2/3)^16 < 0.2 %
@@ -185,7 +194,9 @@ def test_a_signal_while_numba_compiles_stops_the_run(tmp_path: Path) -> None:
     out = tmp_path / "run"
     argv = ["simulate", "--quiet", "--subframes", "40000", "--set", "vehicles.n_vehicles=400", "--links", "off"]
     cmd = [CLI, *argv, "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_default_sigint
+    )
     cache = tmp_path / "numba-cache"
     deadline = time.monotonic() + 120
     while not list(cache.rglob("*.nbi")) and proc.poll() is None and time.monotonic() < deadline:
